@@ -1,0 +1,237 @@
+"""LightningModule around the ArtEq network: losses, both training stages, metrics per split."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+
+from arteq.body import load_body_model
+from arteq.models.arteq_net import ArtEqNet
+from arteq.models.placement import estimate_translation, part_centroid_matrix, vertex_areas
+from arteq.training.losses import DEFAULT_WEIGHTS, arteq_losses
+from arteq.training.metrics import BodyFitMetrics
+
+#: Names of the evaluation splits, in the order the datamodule returns their loaders.
+TEST_SPLITS = ("test_id", "test_ood")
+
+
+def marker_vertices(template: np.ndarray, count: int) -> np.ndarray:
+    """``count`` vertices spread over the template by farthest point sampling (deterministic).
+
+    They stand in for the mocap-marker vertices the paper weights twice in the vertex loss: SMPL's
+    marker indices do not exist on other topologies, evenly spread vertices do on any.
+    """
+    start = int(np.argmin(np.linalg.norm(template - template.mean(0), axis=1)))
+    chosen = [start]
+    dist = np.linalg.norm(template - template[start], axis=1)
+    for _ in range(count - 1):
+        nxt = int(np.argmax(dist))
+        chosen.append(nxt)
+        dist = np.minimum(dist, np.linalg.norm(template - template[nxt], axis=1))
+    return np.asarray(chosen)
+
+
+def _plain(x: Any) -> Any:
+    """Convert OmegaConf containers to plain Python (checkpoints must load with weights_only=True)."""
+    try:
+        from omegaconf import DictConfig, ListConfig, OmegaConf
+
+        if isinstance(x, DictConfig | ListConfig):
+            return OmegaConf.to_container(x, resolve=True)
+    except ImportError:  # pragma: no cover - omegaconf is a dependency
+        pass
+    return x
+
+
+class ArtEqModule(L.LightningModule):
+    """Trains and evaluates :class:`ArtEqNet`.
+
+    Args:
+        net: keyword arguments of :class:`ArtEqNet` (``num_betas`` is taken from ``body_model``).
+        body_model: keyword arguments of :func:`arteq.body.load_body_model` (``name``, ``model_path``,
+            ``num_betas``...). The body model is rebuilt from this at load time and is *not* stored in
+            checkpoints (SMPL files are licensed and must not be redistributed inside them).
+        stage: 1 pools part features with ground-truth labels (all modules trained); 2 pools with
+            the predicted part probabilities (end to end).
+        loss_weights: see :mod:`arteq.training.losses`.
+        optimizer: ``{"name": "adam"|"adamw", "lr": ..., "weight_decay": ...}``.
+        scheduler: ``{"name": "none"|"cosine"|"step", ...}``.
+        markers: number of marker vertices weighted ``marker_weight`` in the vertex loss.
+    """
+
+    def __init__(
+        self,
+        net: Mapping[str, Any] | None = None,
+        body_model: Mapping[str, Any] | None = None,
+        stage: int = 2,
+        loss_weights: Mapping[str, float] | None = None,
+        optimizer: Mapping[str, Any] | None = None,
+        scheduler: Mapping[str, Any] | None = None,
+        markers: int = 64,
+        marker_weight: float = 2.0,
+    ):
+        super().__init__()
+        net = dict(_plain(net) or {})
+        body_model = {k: v for k, v in dict(_plain(body_model) or {}).items() if k != "_target_"}
+        if stage not in (1, 2):
+            raise ValueError(f"stage must be 1 or 2, got {stage}")
+        self.save_hyperparameters(
+            {
+                "net": net,
+                "body_model": body_model,
+                "stage": stage,
+                "loss_weights": dict(_plain(loss_weights) or DEFAULT_WEIGHTS),
+                "optimizer": dict(_plain(optimizer) or {"name": "adam", "lr": 1e-4}),
+                "scheduler": dict(_plain(scheduler) or {"name": "none"}),
+                "markers": markers,
+                "marker_weight": marker_weight,
+            }
+        )
+        self.body = load_body_model(**body_model)
+        for name, buf in list(self.body.named_buffers(recurse=False)):
+            self.body.register_buffer(name, buf, persistent=False)  # rebuilt from file, never saved
+        for p in self.body.parameters():
+            p.requires_grad_(False)
+        net.setdefault("num_betas", self.body.num_betas)
+        self.net = ArtEqNet(**net)
+
+        template = self.body.v_template.detach().double()
+        areas = vertex_areas(template, self.body.faces)
+        self.register_buffer(
+            "centroid_matrix",
+            part_centroid_matrix(areas, self.body.part_labels, self.net.num_parts).float(),
+            persistent=False,
+        )
+        vw = torch.ones(template.shape[0])
+        if markers > 0:
+            vw[torch.from_numpy(marker_vertices(template.numpy(), markers))] = marker_weight
+        self.register_buffer("vertex_weights", vw, persistent=False)
+
+        self.val_metrics = BodyFitMetrics()
+        self.test_metrics = torch.nn.ModuleList([BodyFitMetrics() for _ in TEST_SPLITS])
+
+    # ------------------------------------------------------------------ inference
+    def forward(self, points: torch.Tensor, gt_labels: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """Full prediction for a batch of clouds ``[B, N, 3]`` (metres, any placement).
+
+        Returns the network outputs plus ``vertices [B,V,3]``, ``joints [B,22,3]`` and ``transl [B,3]``
+        of the fitted body, in the frame of ``points``.
+        """
+        pred = self.net(points, gt_labels=gt_labels)
+        body = self.body(betas=pred["betas"], pose=pred["local_rotmats"])
+        transl = estimate_translation(body.vertices, self.centroid_matrix, points, pred["pool_weights"])
+        pred["vertices"] = body.vertices + transl[:, None]
+        pred["joints"] = body.joints + transl[:, None]
+        pred["transl"] = transl
+        return pred
+
+    def ground_truth(self, batch: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Ground-truth mesh and joints (in the batch's centred frame) from its body parameters."""
+        with torch.no_grad():
+            body = self.body(betas=batch["betas"], pose=batch["pose"], transl=batch["transl"])
+        return {**batch, "vertices": body.vertices, "joints": body.joints}
+
+    # ------------------------------------------------------------------ steps
+    def _step(self, batch: Mapping[str, torch.Tensor], use_gt_parts: bool):
+        gt = self.ground_truth(batch)
+        pred = self(batch["points"], gt_labels=batch["labels"] if use_gt_parts else None)
+        losses = arteq_losses(pred, gt, self.hparams.loss_weights, self.vertex_weights)
+        return pred, gt, losses
+
+    def training_step(self, batch, batch_idx):
+        _, _, losses = self._step(batch, use_gt_parts=self.hparams.stage == 1)
+        bs = batch["points"].shape[0]
+        self.log_dict({f"train/{k}": v.detach() for k, v in losses.items()}, batch_size=bs)
+        self.log("train/loss", losses["loss"], prog_bar=True, batch_size=bs)
+        return losses["loss"]
+
+    def _update(self, metric: BodyFitMetrics, pred, gt) -> None:
+        metric.update(
+            pred["vertices"],
+            gt["vertices"],
+            pred["joints"],
+            gt["joints"],
+            pred["global_rotmats"],
+            gt["global_rotmats"],
+            pred["seg_logits"].argmax(-1),
+            gt["labels"],
+        )
+
+    def validation_step(self, batch, batch_idx):
+        # Evaluation always runs the real pipeline: parts predicted, not given.
+        pred, gt, losses = self._step(batch, use_gt_parts=False)
+        self.log("val/loss", losses["loss"], batch_size=batch["points"].shape[0], sync_dist=True)
+        self._update(self.val_metrics, pred, gt)
+
+    def on_validation_epoch_end(self):
+        self._log_metrics("val", self.val_metrics, prog_bar=True)
+
+    def test_step(self, batch, batch_idx, dataloader_idx: int = 0):
+        pred, gt, _ = self._step(batch, use_gt_parts=False)
+        self._update(self.test_metrics[dataloader_idx], pred, gt)
+
+    def on_test_epoch_end(self):
+        for split, metric in zip(TEST_SPLITS, self.test_metrics):
+            if metric.update_called:
+                self._log_metrics(split, metric)
+
+    def _log_metrics(self, split: str, metric: BodyFitMetrics, prog_bar: bool = False) -> None:
+        values = metric.compute()
+        per_part = values.pop("rot_err_deg_per_part")
+        for k, v in values.items():
+            self.log(f"{split}/{k}", v.float(), prog_bar=prog_bar and k in ("v2v_cm", "part_acc"))
+        from arteq.body.skeleton import JOINT_NAMES
+
+        for name, v in zip(JOINT_NAMES, per_part):
+            self.log(f"{split}_rot_per_part/{name}", v.float())
+        metric.reset()
+
+    # ------------------------------------------------------------------ optimisation
+    def configure_optimizers(self):
+        opt_cfg = dict(self.hparams.optimizer)
+        name = opt_cfg.pop("name", "adam").lower()
+        classes = {"adam": torch.optim.Adam, "adamw": torch.optim.AdamW}
+        if name not in classes:
+            raise ValueError(f"optimizer.name must be one of {sorted(classes)}, got {name!r}")
+        optimizer = classes[name](self.net.parameters(), **opt_cfg)
+        sched_cfg = dict(self.hparams.scheduler)
+        sname = sched_cfg.pop("name", "none").lower()
+        if sname == "none":
+            return optimizer
+        if sname == "cosine":
+            total = self.trainer.estimated_stepping_batches
+            warmup = int(sched_cfg.get("warmup_steps", 0))
+            min_ratio = float(sched_cfg.get("min_lr_ratio", 0.05))
+
+            def factor(step: int) -> float:
+                if step < warmup:
+                    return (step + 1) / warmup
+                t = min(1.0, (step - warmup) / max(1, total - warmup))
+                return min_ratio + (1 - min_ratio) * 0.5 * (1 + np.cos(np.pi * t))
+
+            sched = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+            return {"optimizer": optimizer, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        if sname == "step":
+            sched = torch.optim.lr_scheduler.StepLR(
+                optimizer, step_size=int(sched_cfg["step_size"]), gamma=float(sched_cfg.get("gamma", 0.1))
+            )
+            return {"optimizer": optimizer, "lr_scheduler": sched}
+        raise ValueError(f"scheduler.name must be none, cosine or step, got {sname!r}")
+
+    # ------------------------------------------------------------------ stage 2 initialisation
+    def load_net_weights(self, ckpt_path: str) -> None:
+        """Initialise the network from another checkpoint (stage 1 -> stage 2); optimizer starts fresh."""
+        state = torch.load(ckpt_path, map_location="cpu", weights_only=True)
+        if "state_dict" not in state:
+            raise ValueError(f"{ckpt_path}: not a Lightning checkpoint (no 'state_dict')")
+        net_state = {k[4:]: v for k, v in state["state_dict"].items() if k.startswith("net.")}
+        missing, unexpected = self.net.load_state_dict(net_state, strict=False)
+        if missing or unexpected:
+            raise ValueError(
+                f"{ckpt_path}: network does not match this config (missing {missing[:5]}, "
+                f"unexpected {unexpected[:5]}); stage 1 and stage 2 must use the same model config"
+            )
