@@ -74,7 +74,9 @@ def _tables() -> dict[str, torch.Tensor]:
     inverse = (cayley == 0).float().argmax(1)
     trace = rot.diagonal(dim1=-2, dim2=-1).sum(-1)
     angle = torch.arccos(((trace - 1) / 2).clamp(-1, 1))
-    nbr = torch.cat([torch.zeros(1, dtype=torch.long), torch.nonzero((angle - 2 * math.pi / 5).abs() < 1e-6)[:, 0]])
+    nbr = torch.cat(
+        [torch.zeros(1, dtype=torch.long), torch.nonzero((angle - 2 * math.pi / 5).abs() < 1e-6)[:, 0]]
+    )
     if nbr.numel() != 13:
         raise RuntimeError("icosahedral group: expected twelve 72-degree rotations")
     return {
@@ -87,7 +89,9 @@ def _tables() -> dict[str, torch.Tensor]:
     }
 
 
-def group_rotations(dtype: torch.dtype = torch.float32, device: torch.device | str | None = None) -> torch.Tensor:
+def group_rotations(
+    dtype: torch.dtype = torch.float32, device: torch.device | str | None = None
+) -> torch.Tensor:
     """The 60 rotation matrices ``[60, 3, 3]`` (index 0 = identity), cast to ``dtype``/``device``."""
     return _tables()["rotations"].to(dtype=dtype, device=device)
 
@@ -141,7 +145,9 @@ def rotate_group_features(feats: torch.Tensor, element: int, dim: int = 2) -> to
     ``cayley[element, b]``. ``feats`` must have size 60 along ``dim``.
     """
     if feats.shape[dim] != GROUP_SIZE:
-        raise ValueError(f"rotate_group_features: feats has size {feats.shape[dim]} along dim {dim}, expected 60")
+        raise ValueError(
+            f"rotate_group_features: feats has size {feats.shape[dim]} along dim {dim}, expected 60"
+        )
     t = _tables()
     perm = t["cayley"][t["inverse"][element]].to(feats.device)
     return feats.index_select(dim, perm)

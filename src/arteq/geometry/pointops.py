@@ -98,7 +98,7 @@ def _knn_scipy(q: torch.Tensor, r: torch.Tensor, k: int) -> tuple[torch.Tensor, 
     # distances recomputed in the same float64 difference form as the torch path
     d = (gather(r, idx) - q[:, :, None, :]).square().sum(-1)
     # cKDTree orders by (rounded) distance; re-sort so ties/rounding agree with the torch path
-    d, o = d.sort(-1, stable=True)
+    d, o = d.sort(dim=-1, stable=True)
     return d, idx.gather(-1, o)
 
 
@@ -163,7 +163,9 @@ def ball_query(
 def gather(x: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
     """Gather rows per batch: x [B, N, *F], idx [B, *I] long -> [B, *I, *F] (differentiable in x)."""
     if x.dim() < 2 or idx.dim() < 1 or x.shape[0] != idx.shape[0]:
-        raise ValueError(f"gather: need x [B, N, ...] and idx [B, ...], got {tuple(x.shape)} and {tuple(idx.shape)}")
+        raise ValueError(
+            f"gather: need x [B, N, ...] and idx [B, ...], got {tuple(x.shape)} and {tuple(idx.shape)}"
+        )
     b, n = x.shape[:2]
     feat = x.shape[2:]
     flat = idx.reshape(b, -1)

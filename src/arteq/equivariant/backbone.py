@@ -1,0 +1,155 @@
+"""The EPN-style SE(3)-equivariant backbone of ArtEq: separable layers, FPS strides, 3-NN propagation."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+from arteq.geometry.pointops import centroid_nearest_index, farthest_point_sample, three_nn_interpolate
+
+from .group import GROUP_SIZE
+from .layers import DEFAULT_CHUNK_ELEMS, SeparableConvBlock
+
+
+class EquivariantBackbone(nn.Module):
+    """Point-wise features over the 60-element icosahedral group, equivariant to rotations in the group.
+
+    ``forward(points [B, N, 3], fps_idx [B, >=M1] long | None) -> feats [B, N, 60, C_out]`` (channels
+    last, group axis = dim 2), ``C_out = out_channels = channels[-1]``.
+
+    Layers: ``len(channels)`` separable blocks (:class:`SeparableConvBlock`); block ``i`` has
+    ``channels[i]`` outputs, ball radius ``radii[i]``, ``neighbours[i]`` neighbours, Gaussian-like
+    kernel width ``sigmas[i]`` (default ``radii[i]**2 / 2``) and stride ``strides[i]`` (the number of
+    points is divided by it, keeping a prefix of one farthest-point-sampling order). The input feature
+    is a constant 1 per point and group element. The last layer's features are interpolated back to
+    every input point from the 3 nearest centres (inverse squared distance). Defaults are the paper's
+    setting: 5000 -> 2500 -> 2500 -> 1250 -> 1250 points, channels 32, 32, 64, 64.
+
+    FPS: ``fps_idx`` (e.g. computed by data workers with :func:`arteq.geometry.pointops.farthest_point_sample`)
+    gives the sample order of the first strided layer; it needs at least ``M1 = N // strides[first
+    strided]`` columns (extra columns are ignored). If omitted, it is computed in float64, starting from
+    the point nearest the centroid so that the result does not depend on pose, position or point order.
+
+    Equivariance convention (relied upon by the heads): if the input is rotated by group element ``j``
+    (``points @ R_j.T``), then ``out_rot[:, :, a] == out[:, :, cayley[inverse[j], a]]``: the feature at
+    element ``b`` moves to element ``cayley[j, b]`` (see
+    :func:`arteq.equivariant.group.rotate_group_features`). Hence for per-element weights ``w_a`` read
+    off the features, ``sum_a w'_a R_a == R_j sum_b w_b R_b``. Translating the input leaves the output
+    unchanged; permuting the input points permutes the output rows the same way (given consistent FPS).
+    Exact up to rounding (float32 ~1e-5 relative, float64 ~1e-13).
+
+    Memory: each layer's largest intermediates are computed in chunks of about ``chunk_elems``
+    elements; ``checkpoint=True`` recomputes them in the backward pass instead of storing them.
+    """
+
+    def __init__(
+        self,
+        channels: Sequence[int] = (32, 32, 64, 64),
+        strides: Sequence[int] = (2, 1, 2, 1),
+        radii: Sequence[float] = (0.08, 0.113, 0.16, 0.16),
+        neighbours: Sequence[int] = (64, 32, 64, 32),
+        sigmas: Sequence[float] | None = None,
+        kernel: str = "paper24",
+        kernel_radius_ratio: float = 0.7,
+        checkpoint: bool = False,
+        use_fast_path: bool = True,
+        chunk_elems: int = DEFAULT_CHUNK_ELEMS,
+    ) -> None:
+        super().__init__()
+        n = len(channels)
+        if n == 0:
+            raise ValueError("EquivariantBackbone: channels must not be empty")
+        lists = {"strides": strides, "radii": radii, "neighbours": neighbours}
+        if sigmas is not None:
+            lists["sigmas"] = sigmas
+        for name, v in lists.items():
+            if len(v) != n:
+                raise ValueError(f"EquivariantBackbone: {name} has {len(v)} entries, channels has {n}")
+        if any(int(s) < 1 for s in strides):
+            raise ValueError(f"EquivariantBackbone: strides must be >= 1, got {list(strides)}")
+        self.channels = tuple(int(c) for c in channels)
+        self.strides = tuple(int(s) for s in strides)
+        self.kernel = kernel
+        self.out_channels = self.channels[-1]
+        c_in = 1
+        blocks = []
+        for i in range(n):
+            blocks.append(
+                SeparableConvBlock(
+                    c_in,
+                    self.channels[i],
+                    radius=float(radii[i]),
+                    n_neighbours=int(neighbours[i]),
+                    sigma=None if sigmas is None else float(sigmas[i]),
+                    kernel=kernel,
+                    kernel_radius_ratio=kernel_radius_ratio,
+                    use_fast_path=use_fast_path,
+                    checkpoint=checkpoint,
+                    chunk_elems=chunk_elems,
+                )
+            )
+            c_in = self.channels[i]
+        self.blocks = nn.ModuleList(blocks)
+
+    def point_counts(self, n_points: int) -> list[int]:
+        """Number of points after each block for an input of ``n_points``."""
+        counts, m = [], n_points
+        for s in self.strides:
+            m = m // s
+            counts.append(m)
+        return counts
+
+    def fps_size(self, n_points: int) -> int:
+        """Columns of ``fps_idx`` needed for ``n_points`` input points (0 if no block is strided)."""
+        counts = self.point_counts(n_points)
+        return next((c for c, s in zip(counts, self.strides) if s > 1), 0)
+
+    def compute_fps(self, points: torch.Tensor) -> torch.Tensor:
+        """FPS order ``[B, fps_size(N)]`` from the point nearest the centroid (float64, no grad)."""
+        m = self.fps_size(points.shape[1])
+        if m == 0:
+            return torch.zeros(points.shape[0], 0, dtype=torch.long, device=points.device)
+        return farthest_point_sample(points, m, start=centroid_nearest_index(points))
+
+    def forward(self, points: torch.Tensor, fps_idx: torch.Tensor | None = None) -> torch.Tensor:
+        if not isinstance(points, torch.Tensor) or points.dim() != 3 or points.shape[-1] != 3:
+            shape = tuple(points.shape) if isinstance(points, torch.Tensor) else type(points).__name__
+            raise ValueError(f"EquivariantBackbone: points must have shape [B, N, 3], got {shape}")
+        b, n, _ = points.shape
+        counts = self.point_counts(n)
+        if n == 0 or min(counts) < 1:
+            raise ValueError(
+                f"EquivariantBackbone: {n} points is too few for strides {self.strides} (need >= 1 after each)"
+            )
+        if not bool(torch.isfinite(points).all()):
+            raise ValueError("EquivariantBackbone: points contain NaN or inf")
+        dtype = self.blocks[0].spatial_weight.dtype
+        points = points.to(dtype)
+        need = self.fps_size(n)
+        if fps_idx is None:
+            fps_idx = self.compute_fps(points)
+        elif need > 0:
+            if fps_idx.dim() != 2 or fps_idx.shape[0] != b or fps_idx.shape[1] < need:
+                raise ValueError(
+                    f"EquivariantBackbone: fps_idx must be [B={b}, >={need}] for N={n}, got {tuple(fps_idx.shape)}"
+                )
+            if fps_idx.dtype != torch.long or int(fps_idx.min()) < 0 or int(fps_idx.max()) >= n:
+                raise ValueError(f"EquivariantBackbone: fps_idx must be long indices in [0, {n})")
+            fps_idx = fps_idx[:, :need].to(points.device)
+        xyz = points
+        feats = points.new_ones(b, n, GROUP_SIZE, 1)
+        downsampled = False
+        for block, stride, m in zip(self.blocks, self.strides, counts):
+            centres = None
+            if stride > 1:
+                # first strided block: FPS indices into the input; later ones: prefix of the FPS-ordered set
+                centres = (
+                    fps_idx[:, :m] if not downsampled else torch.arange(m, device=xyz.device).expand(b, m)
+                )
+                downsampled = True
+            xyz, feats = block(xyz, feats, centres)
+        if xyz.shape[1] == n and not downsampled:
+            return feats
+        return three_nn_interpolate(points, xyz, feats)
