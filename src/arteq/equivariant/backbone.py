@@ -27,10 +27,11 @@ class EquivariantBackbone(nn.Module):
     every input point from the 3 nearest centres (inverse squared distance). Defaults are the paper's
     setting: 5000 -> 2500 -> 2500 -> 1250 -> 1250 points, channels 32, 32, 64, 64.
 
-    FPS: ``fps_idx`` (e.g. computed by data workers with :func:`arteq.geometry.pointops.farthest_point_sample`)
-    gives the sample order of the first strided layer; it needs at least ``M1 = N // strides[first
-    strided]`` columns (extra columns are ignored). If omitted, it is computed in float64, starting from
-    the point nearest the centroid so that the result does not depend on pose, position or point order.
+    FPS: ``fps_idx`` (e.g. computed by data workers with ``compute_fps`` or
+    :func:`arteq.geometry.pointops.farthest_point_sample`) gives the sample order of the first strided
+    layer; it needs at least ``fps_size(N)`` columns (extra columns are ignored). If omitted, it is
+    computed in float64, starting from the point nearest the centroid so that the result does not
+    depend on pose, position or point order.
 
     Equivariance convention (relied upon by the heads): if the input is rotated by group element ``j``
     (``points @ R_j.T``), then ``out_rot[:, :, a] == out[:, :, cayley[inverse[j], a]]``: the feature at
@@ -121,7 +122,8 @@ class EquivariantBackbone(nn.Module):
         counts = self.point_counts(n)
         if n == 0 or min(counts) < 1:
             raise ValueError(
-                f"EquivariantBackbone: {n} points is too few for strides {self.strides} (need >= 1 after each)"
+                f"EquivariantBackbone: {n} points is too few for strides {self.strides} "
+                "(need >= 1 point after each block)"
             )
         if not bool(torch.isfinite(points).all()):
             raise ValueError("EquivariantBackbone: points contain NaN or inf")
@@ -133,7 +135,8 @@ class EquivariantBackbone(nn.Module):
         elif need > 0:
             if fps_idx.dim() != 2 or fps_idx.shape[0] != b or fps_idx.shape[1] < need:
                 raise ValueError(
-                    f"EquivariantBackbone: fps_idx must be [B={b}, >={need}] for N={n}, got {tuple(fps_idx.shape)}"
+                    f"EquivariantBackbone: fps_idx must be [B={b}, >={need}] for N={n}, "
+                    f"got {tuple(fps_idx.shape)}"
                 )
             if fps_idx.dtype != torch.long or int(fps_idx.min()) < 0 or int(fps_idx.max()) >= n:
                 raise ValueError(f"EquivariantBackbone: fps_idx must be long indices in [0, {n})")

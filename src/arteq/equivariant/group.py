@@ -24,7 +24,7 @@ Conventions
 from __future__ import annotations
 
 import math
-from functools import lru_cache
+from functools import cache, lru_cache
 
 import torch
 
@@ -166,7 +166,7 @@ def _cyclic(v: list[tuple[float, float, float]]) -> list[tuple[float, float, flo
     return [p for x, y, z in v for p in ((x, y, z), (y, z, x), (z, x, y))]
 
 
-@lru_cache(maxsize=None)
+@cache
 def _unit_kernel(kind: str) -> torch.Tensor:
     if kind == "paper24":
         pts = _fibonacci_sphere(23)
@@ -198,7 +198,7 @@ def kernel_points(
     return (_unit_kernel(kind) * radius).to(dtype)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _kernel_perm(kind: str) -> torch.Tensor | None:
     k = _unit_kernel(kind)
     rk = torch.einsum("aij,nj->ani", _tables()["rotations"], k)  # [60, J, 3]

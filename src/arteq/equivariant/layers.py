@@ -172,7 +172,8 @@ class SeparableConvBlock(nn.Module):
         b, n, _ = xyz.shape
         if feats.shape != (b, n, GROUP_SIZE, self.c_in):
             raise ValueError(
-                f"SeparableConvBlock: feats must be [B={b}, N={n}, 60, C_in={self.c_in}], got {tuple(feats.shape)}"
+                f"SeparableConvBlock: feats must be [B={b}, N={n}, 60, C_in={self.c_in}], "
+                f"got {tuple(feats.shape)}"
             )
         new_xyz = xyz if centres is None else gather(xyz, centres)
         m = new_xyz.shape[1]

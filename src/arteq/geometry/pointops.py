@@ -68,7 +68,7 @@ def farthest_point_sample(xyz: torch.Tensor, m: int, start: int | torch.Tensor =
 
 @torch.no_grad()
 def centroid_nearest_index(xyz: torch.Tensor) -> torch.Tensor:
-    """Index ``[B]`` of the point nearest to each cloud's centroid (a rotation/translation/order-free FPS start)."""
+    """Index ``[B]`` of the point nearest each cloud's centroid (FPS start free of pose, position, order)."""
     _check_cloud("xyz", xyz, "centroid_nearest_index")
     x = xyz.detach().to(torch.float64)
     return (x - x.mean(1, keepdim=True)).square().sum(-1).argmin(-1)
