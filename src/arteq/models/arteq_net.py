@@ -42,7 +42,7 @@ class ArtEqNet(nn.Module):
         self.segmenter = PartSegmenter(c, num_parts=NUM_JOINTS, **(segmenter or {}))
         self.pose_head = PoseHead(
             c,
-            group_rotations(),
+            group_rotations(torch.float64),
             PARENTS,
             parent_conditioning=parent_conditioning,
             **(pose_head or {}),

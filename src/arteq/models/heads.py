@@ -113,7 +113,7 @@ class PoseHead(nn.Module):
         super().__init__()
         self.parent_conditioning = parent_conditioning
         self.register_buffer("parents", torch.tensor([max(p, 0) for p in parents]), persistent=False)
-        self.register_buffer("group_rotations", group_rotations.float().clone(), persistent=False)
+        self.register_buffer("group_rotations", group_rotations.double().clone(), persistent=False)
         d_in = 2 * in_channels if parent_conditioning else in_channels
         self.embed = nn.Linear(d_in, dim)
         # Residual after every layer but the first keeps the first attention's output (as the paper's).

@@ -35,6 +35,22 @@ def marker_vertices(template: np.ndarray, count: int) -> np.ndarray:
     return np.asarray(chosen)
 
 
+def build_net(cfg: Mapping[str, Any]) -> torch.nn.Module:
+    """The network named by ``cfg["arch"]`` (default ``"arteq"``) built from the other keys.
+
+    Every architecture returns the same output dict as :meth:`ArtEqNet.forward` and has ``num_parts``.
+    """
+    cfg = dict(cfg)
+    arch = cfg.pop("arch", "arteq")
+    if arch == "arteq":
+        return ArtEqNet(**cfg)
+    if arch == "pointnet2":
+        from arteq.models.baselines import PointNet2Regressor
+
+        return PointNet2Regressor(**cfg)
+    raise ValueError(f"model.net.arch must be 'arteq' or 'pointnet2', got {arch!r}")
+
+
 def _plain(x: Any) -> Any:
     """Convert OmegaConf containers to plain Python (checkpoints must load with weights_only=True)."""
     try:
@@ -97,7 +113,7 @@ class ArtEqModule(L.LightningModule):
         for p in self.body.parameters():
             p.requires_grad_(False)
         net.setdefault("num_betas", self.body.num_betas)
-        self.net = ArtEqNet(**net)
+        self.net = build_net(net)
 
         template = self.body.v_template.detach().double()
         areas = vertex_areas(template, self.body.faces)
