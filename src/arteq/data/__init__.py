@@ -1,0 +1,31 @@
+"""Body-scan data: pose sources, synthetic scans (noisy non-uniform clouds) and the LightningDataModule."""
+
+from arteq.data.amass import AmassPoses, read_amass_npz
+from arteq.data.datamodule import BodyScanDataModule, build_body
+from arteq.data.dataset import BodyScanDataset, EpochSampler, TensorDictDataset
+from arteq.data.poses import (
+    ID_FAMILIES,
+    JOINT_LIMITS_DEG,
+    PoseSource,
+    SyntheticIDPoses,
+    SyntheticOODPoses,
+    measure_id_ood_gap,
+    nearest_pose_distance,
+)
+
+__all__ = [
+    "ID_FAMILIES",
+    "JOINT_LIMITS_DEG",
+    "AmassPoses",
+    "BodyScanDataModule",
+    "BodyScanDataset",
+    "EpochSampler",
+    "PoseSource",
+    "SyntheticIDPoses",
+    "SyntheticOODPoses",
+    "TensorDictDataset",
+    "build_body",
+    "measure_id_ood_gap",
+    "nearest_pose_distance",
+    "read_amass_npz",
+]

@@ -149,7 +149,9 @@ class AmassPoses(PoseSource):
             betas.append(np.repeat(d["betas"][None, :16], len(idx), 0))
             self.frames += [(len(self.files) - 1, int(i)) for i in idx]
         if not poses:
-            raise ValueError(f"AMASS split {split!r} of {self.dir} is empty (motions {sorted(test_m | val_m)})")
+            raise ValueError(
+                f"AMASS split {split!r} of {self.dir} is empty (motions {sorted(test_m | val_m)})"
+            )
         nb = min(b.shape[1] for b in betas)
         self.poses = torch.from_numpy(np.concatenate(poses)).double()
         self.trans = torch.from_numpy(np.concatenate(trans)).double()

@@ -126,7 +126,9 @@ class BodyScanDataset(Dataset):
         src = self.source.sample(index, seeded_generator(*key, "pose"))
         pose = src["pose"]
         if pose.shape != (22, 3) or not torch.isfinite(pose).all():
-            raise ValueError(f"{type(self.source).__name__} gave a bad pose at index {index}: {tuple(pose.shape)}")
+            raise ValueError(
+                f"{type(self.source).__name__} gave a bad pose at index {index}: {tuple(pose.shape)}"
+            )
         rot = roma.rotvec_to_rotmat(pose.double())
         rot[0] = augmentation_rotation(self.augment, seeded_generator(*key, "aug")) @ rot[0]
         betas = self._betas(src.get("betas"), seeded_generator(*key, "shape"))
@@ -134,7 +136,9 @@ class BodyScanDataset(Dataset):
         scan_transl = torch.zeros(3, dtype=torch.float64) if scan_transl is None else scan_transl.double()
 
         dtype = self.body.lbs_weights.dtype
-        out = self.body(betas=betas[None].to(dtype), pose=rot[None].to(dtype), transl=scan_transl[None].to(dtype))
+        out = self.body(
+            betas=betas[None].to(dtype), pose=rot[None].to(dtype), transl=scan_transl[None].to(dtype)
+        )
         verts, grot, pelvis = out.vertices[0], out.global_rotmats[0], out.joints[0, 0]
         faces = self.body.faces
         g = seeded_generator(*key, "surface")
@@ -195,6 +199,10 @@ class EpochSampler(Sampler[int]):
     def __iter__(self):
         e = self.epoch
         self.epoch += 1
-        order = torch.randperm(self.size, generator=seeded_generator(self.seed, "epoch", e)) if self.shuffle else None
+        order = (
+            torch.randperm(self.size, generator=seeded_generator(self.seed, "epoch", e))
+            if self.shuffle
+            else None
+        )
         for i in range(self.size):
             yield e * self.size + (int(order[i]) if order is not None else i)

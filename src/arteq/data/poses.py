@@ -423,7 +423,9 @@ class SyntheticOODPoses(PoseSource):
                 jitter = (torch.rand(NUM_JOINTS, 3, generator=generator, dtype=torch.float64) - 0.5) * 30
                 for idx in torch.nonzero(mboth).flatten().tolist():
                     name = JOINT_NAMES[idx]
-                    if (which == 0 and name.startswith("right_")) or (which == 1 and name.startswith("left_")):
+                    if (which == 0 and name.startswith("right_")) or (
+                        which == 1 and name.startswith("left_")
+                    ):
                         continue
                     ang[idx] = both[idx] + jitter[idx]
             ang = torch.minimum(torch.maximum(ang, self.lo), self.hi)

@@ -69,10 +69,16 @@ def _build_mesh() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if np.linalg.norm(b - a) > 1e-3:
             pieces.append((trimesh.creation.cylinder(radius=r, segment=[a, b], sections=12), p))
     for k in range(NUM_JOINTS):
-        pieces.append((trimesh.creation.icosphere(subdivisions=1, radius=0.05).apply_translation(_REST_JOINTS[k]), k))
-    pieces.append((trimesh.creation.icosphere(subdivisions=2, radius=0.1).apply_translation([0, 0.7, 0.02]), 15))
+        pieces.append(
+            (trimesh.creation.icosphere(subdivisions=1, radius=0.05).apply_translation(_REST_JOINTS[k]), k)
+        )
+    pieces.append(
+        (trimesh.creation.icosphere(subdivisions=2, radius=0.1).apply_translation([0, 0.7, 0.02]), 15)
+    )
     for k, d in ((20, 1.0), (21, -1.0)):  # hands
-        hand = trimesh.creation.box(extents=[0.16, 0.03, 0.08]).apply_translation(_REST_JOINTS[k] + [d * 0.09, 0, 0])
+        hand = trimesh.creation.box(extents=[0.16, 0.03, 0.08]).apply_translation(
+            _REST_JOINTS[k] + [d * 0.09, 0, 0]
+        )
         pieces.append((hand, k))
     verts, faces, owner, off = [], [], [], 0
     for mesh, part in pieces:
