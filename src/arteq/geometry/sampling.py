@@ -55,7 +55,7 @@ def smooth_density_field(
     """A random, smooth, positive density evaluated at ``positions``.
 
     ``density(x) = exp(contrast * f(x))``, ``f(x) = sqrt(2 / K) * sum_k cos(w_k . x + phi_k)`` with
-    ``w_k ~ N(0, (2 pi / wavelength)^2 I)`` and ``phi_k ~ U(0, 2 pi)`` (``f`` has unit variance).
+    ``w_k ~ N(0, (2 pi / wavelength)^2 I / 3)`` (so ``|w_k| ~ 2 pi / wavelength``) and ``phi_k ~ U(0, 2 pi)`` (``f`` has unit variance).
 
     Args:
         positions: ``[P, 3]`` points (metres) where the field is evaluated.
@@ -71,7 +71,7 @@ def smooth_density_field(
             f"need contrast >= 0, wavelength > 0, num_waves >= 1; got {contrast}, {wavelength}, {num_waves}"
         )
     dtype, device = positions.dtype, positions.device
-    w = torch.randn(num_waves, 3, generator=generator, dtype=torch.float64) * (2 * math.pi / wavelength)
+    w = torch.randn(num_waves, 3, generator=generator, dtype=torch.float64) * (2 * math.pi / wavelength / math.sqrt(3))
     phi = torch.rand(num_waves, generator=generator, dtype=torch.float64) * (2 * math.pi)
     w, phi = w.to(device=device, dtype=dtype), phi.to(device=device, dtype=dtype)
     f = torch.cos(positions @ w.T + phi).sum(-1) * math.sqrt(2.0 / num_waves)
