@@ -41,24 +41,27 @@ def read_amass_npz(path: str | Path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise FileNotFoundError(f"AMASS file not found: {path}")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            keys = set(z.files)
-            missing = [k for k in REQUIRED_KEYS if k not in keys]
-            if missing:
-                raise ValueError(
-                    f"{path}: not an AMASS pose file, missing keys {missing} (has {sorted(keys)}; "
-                    f"needs poses, betas, trans)"
-                )
-            poses = np.asarray(z["poses"], dtype=np.float64)
-            trans = np.asarray(z["trans"], dtype=np.float64)
-            betas = np.asarray(z["betas"], dtype=np.float64).reshape(-1)
-            try:  # some releases store gender as a pickled object array: not needed, not unpickled
-                gender = str(z["gender"]) if "gender" in keys else "unknown"
-            except ValueError:
-                gender = "unknown"
-            fps = float(z["mocap_framerate"]) if "mocap_framerate" in keys else float("nan")
-    except (OSError, EOFError) as e:  # zipfile / format errors
-        raise ValueError(f"{path}: cannot read as .npz ({e})") from e
+        z = np.load(path, allow_pickle=False)
+    except (OSError, EOFError, ValueError) as e:  # not a zip / npy, or a pickle we refuse to load
+        raise ValueError(f"{path}: cannot read as an .npz archive ({e})") from e
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path}: is a single .npy array, not an .npz archive with poses/betas/trans")
+    with z:
+        keys = set(z.files)
+        missing = [k for k in REQUIRED_KEYS if k not in keys]
+        if missing:
+            raise ValueError(
+                f"{path}: not an AMASS pose file, missing keys {missing} (has {sorted(keys)}; "
+                f"needs poses, betas, trans)"
+            )
+        poses = np.asarray(z["poses"], dtype=np.float64)
+        trans = np.asarray(z["trans"], dtype=np.float64)
+        betas = np.asarray(z["betas"], dtype=np.float64).reshape(-1)
+        try:  # some releases store gender as a pickled object array: not needed, not unpickled
+            gender = str(z["gender"]) if "gender" in keys else "unknown"
+        except ValueError:
+            gender = "unknown"
+        fps = float(z["mocap_framerate"]) if "mocap_framerate" in keys else float("nan")
     if poses.ndim != 2 or poses.shape[1] < 66:
         raise ValueError(f"{path}: 'poses' must be [N, 72|156|165] (>= 66 columns), got {poses.shape}")
     if trans.shape != (poses.shape[0], 3):
