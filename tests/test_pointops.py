@@ -42,6 +42,14 @@ def test_fps_matches_simple_loop_and_is_prefix_consistent():
     assert torch.equal(gather(idx[..., None], again)[..., 0], idx[:, :40])
 
 
+def test_fps_torch_loop_matches_numpy_loop():
+    from arteq.geometry.pointops import _fps_torch
+
+    x = torch.rand(2, 300, 3, dtype=torch.float64)
+    start = torch.tensor([3, 7])
+    assert torch.equal(_fps_torch(x, start, 60), farthest_point_sample(x, 60, start=start))
+
+
 def test_fps_float32_input_uses_float64():
     x = torch.rand(1, 300, 3, dtype=torch.float64)
     assert torch.equal(farthest_point_sample(x.float(), 50), farthest_point_sample(x.float().double(), 50))

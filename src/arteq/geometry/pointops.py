@@ -11,6 +11,7 @@ see ``benchmarks/bench_pointops.py``); the pure-torch path is the reference and 
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 #: Largest [B, chunk, N] float64 distance block formed at once (elements).
@@ -49,15 +50,34 @@ def farthest_point_sample(xyz: torch.Tensor, m: int, start: int | torch.Tensor =
     if not 1 <= m <= n:
         raise ValueError(f"farthest_point_sample: m must be in [1, N={n}], got {m}")
     x = xyz.detach().to(torch.float64)
-    idx = torch.empty(b, m, dtype=torch.long, device=xyz.device)
     if isinstance(start, torch.Tensor):
         cur = start.to(device=xyz.device, dtype=torch.long).reshape(b)
     else:
         if not 0 <= start < n:
             raise ValueError(f"farthest_point_sample: start must be in [0, N={n}), got {start}")
         cur = torch.full((b,), int(start), dtype=torch.long, device=xyz.device)
-    mind = torch.full((b, n), float("inf"), dtype=torch.float64, device=xyz.device)
-    ar = torch.arange(b, device=xyz.device)
+    if xyz.device.type == "cpu":
+        # numpy loop: one thread, no per-step dispatch overhead (torch's small ops slow down badly on a busy
+        # CPU; see benchmarks/README.md); same float64 arithmetic and first-index argmax as the torch loop
+        xn, cn = x.numpy(), cur.numpy()
+        out = np.empty((b, m), dtype=np.int64)
+        for bi in range(b):
+            p, c = xn[bi], int(cn[bi])
+            mind = np.full(n, np.inf)
+            for i in range(m):
+                out[bi, i] = c
+                np.minimum(mind, ((p - p[c]) ** 2).sum(-1), out=mind)
+                c = int(mind.argmax())
+        return torch.from_numpy(out)
+    return _fps_torch(x, cur, m)
+
+
+def _fps_torch(x: torch.Tensor, cur: torch.Tensor, m: int) -> torch.Tensor:
+    """Torch FPS loop (any device). x: [B, N, 3] float64; cur: [B] start indices -> [B, m]."""
+    b, n, _ = x.shape
+    idx = torch.empty(b, m, dtype=torch.long, device=x.device)
+    mind = torch.full((b, n), float("inf"), dtype=torch.float64, device=x.device)
+    ar = torch.arange(b, device=x.device)
     for i in range(m):
         idx[:, i] = cur
         d = (x - x[ar, cur][:, None, :]).square().sum(-1)
