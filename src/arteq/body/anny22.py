@@ -1,0 +1,444 @@
+"""Build "anny22", the free SMPL-format default body, from the ``anny`` package (Apache-2.0, CC0 assets).
+
+Usage: ``python -m arteq.body.anny22 [--out PATH] [--force] [--samples N] [--seed S]``. The file is cached
+under ``arteq.paths.cache_dir("body_models") / "anny22.npz"`` and built on first use by
+``load_body_model("anny22")``. ``anny`` is imported only inside the build functions: everything else runs
+from the cached file on machines without ``anny``. Nothing is downloaded.
+
+What is built (see docs/body.md):
+
+* Skeleton: SMPL's 22 body joints, order and parents as :mod:`arteq.body.skeleton`. Each joint is an Anny
+  bone head (:data:`JOINT_TO_ANNY`), except ``left_foot`` / ``right_foot``: SMPL's foot joint sits at the
+  ball of the foot, taken as the mean head of Anny's five first toe bones. Every other Anny bone is folded
+  into the part of its nearest articulated ancestor (:func:`fold_table`), toes into the feet.
+* Rest pose: a T-pose. Anny's reference pose (its A-pose) is posed with the upper arms and forearms rotated
+  to horizontal (minimal rotations, computed once on the default phenotype) and that is baked in.
+* Axes: Anny is z-up facing -y; SMPL is y-up facing +z, +x the body's left in both:
+  ``p_smpl = C p_anny`` with ``C = [[1,0,0],[0,0,1],[0,-1,0]]`` (a rotation, -90 deg about x).
+* Origin: the pelvis (Anny's root bone head) of every shape sample is at the origin.
+* Shape space: PCA over ``N`` shapes drawn from ``anny.shape_distribution.SimpleShapeDistribution`` with
+  morphological age uniform in ``[18, 70]`` years (adults, like SMPL), all genders; 16 components stored
+  with unit variance (``shapedirs[..., k] = sqrt(lambda_k) * u_k``), so ``beta ~ N(0, I)`` reproduces the
+  sampled distribution's covariance within the kept subspace.
+* Joint regressor: per joint, convex weights (non-negative, sum to one, hence translation-equivariant) over
+  the 600 nearest vertices of its part and its parent's part, fitted by NNLS to Anny's own joint positions
+  across the shape samples; the held-out error is stored in the provenance.
+* posedirs: none (Anny has no pose correctives); stored as an empty ``[V, 3, 0]`` array.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from arteq.body.skeleton import JOINT_NAMES, NUM_JOINTS, PARENTS, local_to_global
+from arteq.paths import cache_dir
+
+#: SMPL joint -> Anny bone whose head is the joint ("" = virtual joint, see TOE_BASES).
+JOINT_TO_ANNY: dict[str, str] = {
+    "pelvis": "root",
+    "left_hip": "upperleg01.L",
+    "right_hip": "upperleg01.R",
+    "spine1": "spine03",
+    "left_knee": "lowerleg01.L",
+    "right_knee": "lowerleg01.R",
+    "spine2": "spine02",
+    "left_ankle": "foot.L",
+    "right_ankle": "foot.R",
+    "spine3": "spine01",
+    "left_foot": "",
+    "right_foot": "",
+    "neck": "neck01",
+    "left_collar": "clavicle.L",
+    "right_collar": "clavicle.R",
+    "head": "head",
+    "left_shoulder": "upperarm01.L",
+    "right_shoulder": "upperarm01.R",
+    "left_elbow": "lowerarm01.L",
+    "right_elbow": "lowerarm01.R",
+    "left_wrist": "wrist.L",
+    "right_wrist": "wrist.R",
+}
+#: The virtual foot joints: mean head of these toe bones (the ball of the foot).
+TOE_BASES: dict[str, tuple[str, ...]] = {
+    side: tuple(f"toe{i}-1.{s}" for i in range(1, 6)) for side, s in (("left_foot", "L"), ("right_foot", "R"))
+}
+#: Anny bones rotated to bring the arms from Anny's A-pose to a T-pose: (bone, child bone, target dir).
+TPOSE_BAKE: tuple[tuple[str, str, tuple[float, float, float]], ...] = (
+    ("upperarm01.L", "lowerarm01.L", (1.0, 0.0, 0.0)),
+    ("lowerarm01.L", "wrist.L", (1.0, 0.0, 0.0)),
+    ("upperarm01.R", "lowerarm01.R", (-1.0, 0.0, 0.0)),
+    ("lowerarm01.R", "wrist.R", (-1.0, 0.0, 0.0)),
+)
+#: Anny (z up, -y front) -> SMPL (y up, +z front) axes: p_smpl = C @ p_anny.
+ANNY_TO_SMPL = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+AGE_RANGE = (18.0, 70.0)
+NUM_STORED_BETAS = 16
+
+
+def default_path() -> Path:
+    """Where the cached anny22 model lives: ``cache_dir("body_models") / "anny22.npz"``."""
+    return cache_dir("body_models") / "anny22.npz"
+
+
+def fold_table(bone_labels: list[str], bone_parents: list[int]) -> list[int]:
+    """Part index (0..21) of every Anny bone: its own joint if articulated, toes -> foot, else the part of
+    its nearest articulated ancestor."""
+    bone_to_joint = {b: JOINT_NAMES.index(j) for j, b in JOINT_TO_ANNY.items() if b}
+    toe_to_joint = {b: JOINT_NAMES.index(j) for j, bones in TOE_BASES.items() for b in bones}
+    parts = []
+    for i, label in enumerate(bone_labels):
+        a = i
+        while True:
+            lab = bone_labels[a]
+            if lab in bone_to_joint:
+                parts.append(bone_to_joint[lab])
+                break
+            if lab in toe_to_joint:
+                parts.append(toe_to_joint[lab])
+                break
+            a = bone_parents[a]
+            if a < 0:
+                raise RuntimeError(f"anny bone {label!r} has no articulated ancestor")
+    return parts
+
+
+def _align(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Minimal rotation ``[3,3]`` taking direction ``a`` to direction ``b``."""
+    import roma
+
+    a = a / a.norm()
+    b = b / b.norm()
+    axis = torch.linalg.cross(a, b)
+    angle = torch.atan2(axis.norm(), (a * b).sum())
+    return roma.rotvec_to_rotmat(axis / axis.norm().clamp_min(1e-12) * angle)
+
+
+def load_anny():
+    """Instantiate the full-body Anny model (float64, CPU, local-ref pose parameterisation).
+
+    Anny's optional per-bone *reference* orientations are dropped, so that identity deltas give Anny's rest
+    mesh itself (its A-pose) and every bone's skinning transform is the identity there: posing the baked
+    T-pose then composes exactly with Anny's own skinning except where the bake itself blends (shoulders).
+    """
+    import anny
+
+    model = anny.Anny(pose_parameterization="local-ref").to(dtype=torch.float64)
+    model.reference_bone_orientations = None
+    return model
+
+
+def _bone_index(model) -> dict[str, int]:
+    return {b: i for i, b in enumerate(model.bone_labels)}
+
+
+def compute_bake(model) -> dict[str, torch.Tensor]:
+    """Local-ref deltas ``{bone: [3,3]}`` that pose Anny's default phenotype from its A-pose to a T-pose.
+
+    Each listed bone is rotated (minimally) so that the segment to its child points along the target
+    direction; deltas are world-axis rotations composed along the chain (``G_c = G_p D_c``).
+    """
+    idx = _bone_index(model)
+    bake: dict[str, torch.Tensor] = {}
+    glob: dict[str, torch.Tensor] = {}
+    eye = torch.eye(3, dtype=torch.float64)
+    for bone, child, target in TPOSE_BAKE:
+        out = model(pose_parameters=_bake_pose(model, bake, 1))
+        heads = out["bone_poses"][0, :, :3, 3]
+        seg = heads[idx[child]] - heads[idx[bone]]
+        g_new = _align(seg, torch.tensor(target, dtype=torch.float64))
+        # Parent's global (relative to reference) rotation = product of the deltas already baked on the chain.
+        g_parent = eye
+        a = model.bone_parents[idx[bone]]
+        while a >= 0:
+            if model.bone_labels[a] in glob:
+                g_parent = glob[model.bone_labels[a]]
+                break
+            a = model.bone_parents[a]
+        g_bone = g_new @ g_parent
+        glob[bone] = g_bone
+        bake[bone] = g_parent.T @ g_bone
+    return bake
+
+
+def _bake_pose(model, bake: dict[str, torch.Tensor], batch: int) -> dict[str, torch.Tensor]:
+    pose = {}
+    for bone, rot in bake.items():
+        h = torch.eye(4, dtype=torch.float64)
+        h[:3, :3] = rot
+        pose[bone] = h.expand(batch, 4, 4).clone()
+    if not pose:
+        pose["root"] = torch.eye(4, dtype=torch.float64).expand(batch, 4, 4).clone()
+    return pose
+
+
+def baked_globals(model, bake: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Global rotation ``[n_bones,3,3]`` of every bone in the baked T-pose, relative to Anny's reference."""
+    eye = torch.eye(3, dtype=torch.float64)
+    out: list[torch.Tensor] = []
+    for i, label in enumerate(model.bone_labels):
+        p = model.bone_parents[i]
+        g_p = out[p] if p >= 0 else eye
+        out.append(g_p @ bake.get(label, eye))
+    return torch.stack(out)
+
+
+def anny_tpose(model, phenotypes: dict[str, torch.Tensor], bake: dict[str, torch.Tensor]):
+    """Anny's T-posed mesh and 22 joints in SMPL axes, pelvis at the origin.
+
+    Args:
+        phenotypes: dict of ``[B]`` tensors (Anny phenotype values).
+    Returns:
+        vertices ``[B,V,3]``, joints ``[B,22,3]`` (float64, SMPL axes, metres).
+    """
+    batch = next(iter(phenotypes.values())).shape[0]
+    out = model(pose_parameters=_bake_pose(model, bake, batch), phenotype_kwargs=phenotypes)
+    return _to_smpl(model, out["vertices"], out["bone_poses"][..., :3, 3])
+
+
+def _to_smpl(model, verts: torch.Tensor, heads: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    idx = _bone_index(model)
+    joints = []
+    for name in JOINT_NAMES:
+        if JOINT_TO_ANNY[name]:
+            joints.append(heads[:, idx[JOINT_TO_ANNY[name]]])
+        else:
+            joints.append(heads[:, [idx[b] for b in TOE_BASES[name]]].mean(dim=1))
+    joints = torch.stack(joints, dim=1)
+    C = torch.as_tensor(ANNY_TO_SMPL, dtype=verts.dtype)
+    return verts @ C.T, joints @ C.T
+
+
+def anny_deltas_from_pose(model, bake: dict[str, torch.Tensor], pose: torch.Tensor) -> torch.Tensor:
+    """Anny local-ref deltas ``[B, n_bones, 4, 4]`` that realise an anny22/SMPL pose.
+
+    Every Anny bone gets the global rotation of its anny22 part (folded bones follow their part). Exact for
+    all joints except the virtual foot joints, where Anny's toes pivot about their own heads instead of the
+    mean toe base (an exact match therefore needs ``pose[:, 10]`` and ``pose[:, 11]`` at identity).
+
+    Args:
+        pose: ``[B, 22, 3, 3]`` local rotation matrices in SMPL axes (float64).
+    """
+    C = torch.as_tensor(ANNY_TO_SMPL, dtype=pose.dtype)
+    g_parts = C.T @ local_to_global(pose) @ C  # [B,22,3,3] in Anny axes
+    parts = fold_table(model.bone_labels, model.bone_parents)
+    g_hat = g_parts[:, parts] @ baked_globals(model, bake).to(pose.dtype)  # [B,n,3,3]
+    parent = [p if p >= 0 else 0 for p in model.bone_parents]
+    local = g_hat[:, parent].transpose(-1, -2) @ g_hat
+    local[:, 0] = g_hat[:, 0]
+    deltas = torch.eye(4, dtype=pose.dtype).repeat(pose.shape[0], len(parts), 1, 1)
+    deltas[..., :3, :3] = local
+    return deltas
+
+
+def _fit_regressor(
+    verts: np.ndarray,
+    joints: np.ndarray,
+    weights22: np.ndarray,
+    max_cand: int = 600,
+    ridge_sum: float = 100.0,
+) -> np.ndarray:
+    """Convex per-joint vertex weights ``[22, V]`` by NNLS (sum-to-one enforced by a heavy extra row).
+
+    Candidates: the vertices skinned to the joint's part or its parent's (weight > 0.05), the
+    ``max_cand`` nearest to the joint's mean position, so that they surround it.
+    """
+    from scipy.optimize import nnls
+
+    N, V, _ = verts.shape
+    mean_v, mean_j = verts.mean(0), joints.mean(0)
+    reg = np.zeros((NUM_JOINTS, V))
+    for j in range(NUM_JOINTS):
+        near_parts = [j] + ([PARENTS[j]] if PARENTS[j] >= 0 else [])
+        mask = weights22[:, near_parts].sum(1) > 0.05
+        cand = np.nonzero(mask)[0]
+        d = np.linalg.norm(mean_v[cand] - mean_j[j], axis=1)
+        cand = cand[np.argsort(d)[:max_cand]]
+        A = verts[:, cand, :].transpose(0, 2, 1).reshape(N * 3, len(cand))
+        b = joints[:, j, :].reshape(N * 3)
+        A = np.vstack([A, ridge_sum * np.ones((1, len(cand)))])
+        b = np.concatenate([b, [ridge_sum]])
+        w, _ = nnls(A, b, maxiter=50 * len(cand))
+        reg[j, cand] = w / w.sum()
+    return reg
+
+
+def build_anny22(
+    out: str | Path | None = None,
+    num_samples: int = 600,
+    seed: int = 0,
+    age_range: tuple[float, float] = AGE_RANGE,
+    verbose: bool = True,
+) -> Path:
+    """Build the anny22 model file (atomically) and return its path. Takes about a minute warm."""
+    import anny
+    from anny.shape_distribution import SimpleShapeDistribution
+
+    out = Path(out) if out is not None else default_path()
+    t0 = time.time()
+
+    def log(msg: str) -> None:
+        if verbose:
+            print(f"[anny22 {time.time() - t0:6.1f}s] {msg}", file=sys.stderr, flush=True)
+
+    log(f"building the anny22 body model from anny {anny.__version__} -> {out}")
+    model = load_anny()
+    log(f"anny loaded: {model.template_vertices.shape[0]} vertices, {len(model.bone_labels)} bones")
+    bake = compute_bake(model)
+
+    torch.manual_seed(seed)
+    age = torch.distributions.Uniform(
+        torch.tensor(age_range[0], dtype=torch.float64), torch.tensor(age_range[1], dtype=torch.float64)
+    )
+    dist = SimpleShapeDistribution(model, morphological_age_distribution=age)
+    verts, joints = [], []
+    chunk = 64
+    with torch.no_grad():
+        for start in range(0, num_samples, chunk):
+            n = min(chunk, num_samples - start)
+            _, phen = dist.sample(n)
+            v, j = anny_tpose(model, phen, bake)
+            verts.append(v)
+            joints.append(j)
+            log(f"sampled shapes {start + n}/{num_samples}")
+    V = torch.cat(verts).numpy()
+    J = torch.cat(joints).numpy()
+    # Pelvis at the origin for every shape.
+    V = V - J[:, :1]
+    J = J - J[:, :1]
+
+    # Skinning weights folded to 22 parts.
+    from anny.skinning.skinning import dense_bone_weights
+
+    dense = dense_bone_weights(model.vertex_bone_weights, model.vertex_bone_indices, len(model.bone_labels))
+    parts = np.asarray(fold_table(model.bone_labels, model.bone_parents))
+    w22 = np.zeros((dense.shape[0], NUM_JOINTS))
+    np.add.at(w22.T, parts, dense.numpy().T)
+    w22 /= w22.sum(1, keepdims=True)
+
+    # PCA shape space.
+    log("PCA")
+    nv = V.shape[1]
+    X = V.reshape(num_samples, -1)
+    mean = X.mean(0)
+    Xc = X - mean
+    # Eigen-decomposition of the small [N, N] Gram matrix (N << 3V): same components as the SVD, faster.
+    evals, evecs = np.linalg.eigh(Xc @ Xc.T)
+    order = np.argsort(evals)[::-1]
+    evals, evecs = np.clip(evals[order], 0.0, None), evecs[:, order]
+    var = evals / (num_samples - 1)
+    explained = np.cumsum(var) / var.sum()
+    comps = (Xc.T @ evecs[:, :NUM_STORED_BETAS]) / np.sqrt(evals[:NUM_STORED_BETAS])  # unit columns [3V, k]
+    shapedirs = (comps * np.sqrt(var[:NUM_STORED_BETAS])).reshape(nv, 3, -1)
+
+    # Joint regressor: fit on 80 % of the samples, report the error on the rest, refit on all.
+    log("fitting the joint regressor")
+    n_fit = int(0.8 * num_samples)
+    reg = _fit_regressor(V[:n_fit], J[:n_fit], w22)
+    err = np.linalg.norm(np.einsum("kv,nvc->nkc", reg, V[n_fit:]) - J[n_fit:], axis=-1) * 1000.0
+    reg = _fit_regressor(V, J, w22)
+
+    faces = model.faces.cpu().numpy().astype(np.int64)
+    kintree = np.stack([np.array([2**32 - 1] + list(PARENTS[1:]), dtype=np.int64), np.arange(NUM_JOINTS)])
+    meta = {
+        "name": "anny22",
+        "anny_version": anny.__version__,
+        "seed": seed,
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "num_samples": num_samples,
+        "morphological_age_range_years": list(age_range),
+        "gender": "uniform in [0, 1] (anny phenotype)",
+        "variance_explained_cumulative": [float(x) for x in explained[:NUM_STORED_BETAS]],
+        "joint_regressor_heldout_error_mm": {
+            "mean": float(err.mean()),
+            "max": float(err.max()),
+            "per_joint_mean": {n: float(e) for n, e in zip(JOINT_NAMES, err.mean(0))},
+        },
+        "axes": "SMPL: y up, +z front, +x body's left; p_smpl = C p_anny, C = [[1,0,0],[0,0,1],[0,-1,0]]",
+        "origin": "pelvis (anny root bone head) at 0 for every shape sample",
+        "rest_pose": "T-pose: anny reference pose with upper arms and forearms rotated to horizontal",
+        "tpose_bake_bones": list(bake),
+        "fold": {b: JOINT_NAMES[p] for b, p in zip(model.bone_labels, parts.tolist())},
+        "posedirs": "none (anny has no pose correctives)",
+        "units": "metres",
+    }
+    arrays = {
+        "v_template": mean.reshape(nv, 3).astype(np.float32),
+        "shapedirs": shapedirs.astype(np.float32),
+        "posedirs": np.zeros((nv, 3, 0), dtype=np.float32),
+        "J_regressor": reg.astype(np.float32),
+        "weights": w22.astype(np.float32),
+        "kintree_table": kintree,
+        "f": faces,
+        "tpose_bake_rotmats": torch.stack(list(bake.values())).numpy(),
+        "meta_json": np.array(json.dumps(meta)),
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp.npz")
+    try:
+        np.savez_compressed(tmp, **arrays)
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    log(
+        f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB): variance explained by 10 betas "
+        f"{explained[9] * 100:.2f}%, joint regressor error mean {err.mean():.2f} mm / max {err.max():.2f} mm"
+    )
+    return out
+
+
+def read_meta(path: str | Path | None = None) -> dict:
+    """Provenance dict stored in an anny22 file."""
+    with np.load(path or default_path(), allow_pickle=False) as z:
+        return json.loads(str(z["meta_json"]))
+
+
+def read_bake(path: str | Path | None = None) -> dict[str, torch.Tensor]:
+    """The T-pose bake deltas ``{anny bone: [3,3]}`` stored in an anny22 file."""
+    meta = read_meta(path)
+    with np.load(path or default_path(), allow_pickle=False) as z:
+        rots = torch.as_tensor(z["tpose_bake_rotmats"], dtype=torch.float64)
+    return dict(zip(meta["tpose_bake_bones"], rots))
+
+
+def ensure_anny22(path: str | Path | None = None, force: bool = False) -> Path:
+    """Return the cached anny22 file, building it (needs ``anny``) if absent or ``force``."""
+    path = Path(path) if path is not None else default_path()
+    if path.is_file() and not force:
+        return path
+    try:
+        import anny  # noqa: F401
+    except ImportError as exc:
+        raise RuntimeError(
+            f"the anny22 body model is not cached at '{path}' and the `anny` package needed to build it is "
+            "not installed: `pip install anny==0.6.2` (or copy anny22.npz there from a machine that has it)"
+        ) from exc
+    print(f"arteq: building the anny22 body model into {path} (once; about a minute) ...", file=sys.stderr)
+    return build_anny22(path)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=None, help="output .npz (default: the arteq cache)")
+    parser.add_argument("--force", action="store_true", help="rebuild even if the file exists")
+    parser.add_argument("--samples", type=int, default=600, help="shape samples for the PCA")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    out = args.out or default_path()
+    if out.exists() and not args.force:
+        print(f"{out} exists (use --force to rebuild)")
+        return
+    build_anny22(out, num_samples=args.samples, seed=args.seed)
+
+
+if __name__ == "__main__":
+    main()
