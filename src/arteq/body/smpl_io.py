@@ -12,6 +12,7 @@ the first 22 (hands into wrists) for the skinning weights and dropped from the r
 
 from __future__ import annotations
 
+import codecs
 import copyreg
 import io
 import pickle
@@ -83,6 +84,7 @@ _ALLOWED: dict[str, Any] = {
     "copyreg._reconstructor": copyreg._reconstructor,
     "__builtin__.object": object,
     "builtins.object": object,
+    "_codecs.encode": codecs.encode,  # how protocol-2 pickles from Python 3 store bytes
     "__builtin__.set": set,
     "builtins.set": set,
     "__builtin__.frozenset": frozenset,
