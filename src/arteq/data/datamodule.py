@@ -108,7 +108,7 @@ class BodyScanDataModule(L.LightningDataModule):
         use_data_betas: bool | None = None,
         num_points: int = 5000,
         noise_std: float = 0.001,
-        density_contrast: float = 1.0,
+        density_contrast: float = 0.75,
         density_wavelength: float = 0.6,
         beta_scale: float = 1.0,
         augment: str = "none",

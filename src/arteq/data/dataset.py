@@ -76,7 +76,7 @@ class BodyScanDataset(Dataset):
         num_points: int = 5000,
         noise_std: float = 0.001,
         augment: str = "none",
-        density_contrast: float = 1.0,
+        density_contrast: float = 0.75,
         density_wavelength: float = 0.6,
         beta_scale: float = 1.0,
     ) -> None:

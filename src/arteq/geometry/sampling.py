@@ -71,7 +71,9 @@ def smooth_density_field(
             f"need contrast >= 0, wavelength > 0, num_waves >= 1; got {contrast}, {wavelength}, {num_waves}"
         )
     dtype, device = positions.dtype, positions.device
-    w = torch.randn(num_waves, 3, generator=generator, dtype=torch.float64) * (2 * math.pi / wavelength / math.sqrt(3))
+    w = torch.randn(num_waves, 3, generator=generator, dtype=torch.float64) * (
+        2 * math.pi / wavelength / math.sqrt(3)
+    )
     phi = torch.rand(num_waves, generator=generator, dtype=torch.float64) * (2 * math.pi)
     w, phi = w.to(device=device, dtype=dtype), phi.to(device=device, dtype=dtype)
     f = torch.cos(positions @ w.T + phi).sum(-1) * math.sqrt(2.0 / num_waves)
