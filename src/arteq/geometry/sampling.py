@@ -55,7 +55,8 @@ def smooth_density_field(
     """A random, smooth, positive density evaluated at ``positions``.
 
     ``density(x) = exp(contrast * f(x))``, ``f(x) = sqrt(2 / K) * sum_k cos(w_k . x + phi_k)`` with
-    ``w_k ~ N(0, (2 pi / wavelength)^2 I / 3)`` (so ``|w_k| ~ 2 pi / wavelength``) and ``phi_k ~ U(0, 2 pi)`` (``f`` has unit variance).
+    ``w_k ~ N(0, (2 pi / wavelength)^2 I / 3)`` (so ``|w_k| ~ 2 pi / wavelength``) and
+    ``phi_k ~ U(0, 2 pi)`` (``f`` has unit variance).
 
     Args:
         positions: ``[P, 3]`` points (metres) where the field is evaluated.
