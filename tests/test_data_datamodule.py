@@ -88,7 +88,7 @@ def test_translation_convention(body):
     verts, pelvis, grot = out.vertices[0], out.joints[0, 0], out.global_rotmats[0]
     # re-draw the same surface pattern on this mesh: it reproduces the sample's points exactly
     g = seeded_generator(0, "t", 2, "surface")
-    dens = smooth_density_field((verts[body.faces].mean(1) - pelvis) @ grot[0], g)
+    dens = smooth_density_field((verts[body.faces].mean(1) - pelvis) @ grot[0], g, ds.density_contrast)
     again, _, _ = sample_surface(verts, body.faces, 2000, g, dens, 0.0)
     assert torch.allclose(again, s["points"], atol=1e-5)
     assert torch.allclose(out.global_rotmats[0], s["global_rotmats"], atol=1e-5)
