@@ -161,8 +161,9 @@ class ArtEqModule(L.LightningModule):
     def training_step(self, batch, batch_idx):
         _, _, losses = self._step(batch, use_gt_parts=self.hparams.stage == 1)
         bs = batch["points"].shape[0]
-        self.log_dict({f"train/{k}": v.detach() for k, v in losses.items()}, batch_size=bs)
-        self.log("train/loss", losses["loss"], prog_bar=True, batch_size=bs)
+        terms = {f"train/{k}": v.detach() for k, v in losses.items() if k != "loss"}
+        self.log_dict(terms, batch_size=bs)
+        self.log("train/loss", losses["loss"].detach(), prog_bar=True, batch_size=bs)
         return losses["loss"]
 
     def _update(self, metric: BodyFitMetrics, pred, gt) -> None:

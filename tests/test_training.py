@@ -1,0 +1,173 @@
+"""ArtEq network + LightningModule + train/eval entry points, on tiny configurations (CPU)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+from arteq.equivariant import element_orders, group_rotations
+from arteq.training.module import ArtEqModule
+
+CONF = str(Path(__file__).resolve().parents[1] / "conf")
+
+TINY_NET = {
+    "backbone": {"channels": [8, 8, 8, 8], "neighbours": [16, 8, 16, 8], "kernel": "ico13"},
+    "segmenter": {"hidden": 32},
+    "pose_head": {"dim": 32, "heads": 4, "mlp_hidden": 32},
+    "shape_head": {"dim": 32, "heads": 4, "mlp_hidden": 32},
+}
+TINY_OVERRIDES = [
+    "data.num_points=200",
+    "data.train_size=8",
+    "data.val_size=4",
+    "data.test_size=4",
+    "data.batch_size=2",
+    "data.num_workers=0",
+    "trainer.max_epochs=1",
+    "trainer.limit_train_batches=2",
+    "trainer.enable_progress_bar=false",
+    "model.net.backbone.channels=[8,8,8,8]",
+    "model.net.backbone.neighbours=[16,8,16,8]",
+    "model.net.segmenter.hidden=32",
+    "model.net.pose_head.dim=32",
+    "model.net.pose_head.heads=4",
+    "model.net.pose_head.mlp_hidden=32",
+    "model.net.shape_head.dim=32",
+    "model.net.shape_head.mlp_hidden=32",
+    "mean_pose_baseline=false",
+]
+
+
+@pytest.fixture(scope="module")
+def tiny_batch():
+    from arteq.data import BodyScanDataModule
+
+    dm = BodyScanDataModule(
+        body_model={"name": "anny22"}, num_points=200, train_size=2, val_size=2, test_size=2,
+        batch_size=2, num_workers=0, cache=False,
+    )  # fmt: skip
+    dm.setup("fit")
+    return next(iter(dm.train_dataloader()))
+
+
+def _module(stage: int = 2, **kw) -> ArtEqModule:
+    torch.manual_seed(0)
+    return ArtEqModule(net=TINY_NET, body_model={"name": "anny22"}, stage=stage, **kw)
+
+
+def _cfg(tmp_path: Path, *extra: str):
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        return compose(
+            "train",
+            overrides=[*TINY_OVERRIDES, f"paths.output_root={tmp_path}", *extra],
+        )
+
+
+def test_gradients_finite_at_initialisation(tiny_batch):
+    module = _module()
+    for stage_gt in (True, False):
+        module.zero_grad()
+        _, _, losses = module._step(tiny_batch, use_gt_parts=stage_gt)
+        losses["loss"].backward()
+        assert torch.isfinite(losses["loss"])
+        for name, p in module.net.named_parameters():
+            assert p.grad is not None, name
+            assert torch.isfinite(p.grad).all(), name
+
+
+@pytest.mark.parametrize("element", [int(torch.nonzero(element_orders() == o)[0]) for o in (3, 5)])
+def test_full_model_is_equivariant(tiny_batch, element):
+    module = _module().eval()
+    r = group_rotations()[element]
+    pts = tiny_batch["points"]
+    with torch.no_grad():
+        out = module(pts)
+        out_rot = module(pts @ r.T)
+    torch.testing.assert_close(out_rot["part_probs"], out["part_probs"], atol=1e-4, rtol=0)
+    torch.testing.assert_close(out_rot["betas"], out["betas"], atol=1e-4, rtol=1e-3)
+    torch.testing.assert_close(out_rot["global_rotmats"], r @ out["global_rotmats"], atol=1e-3, rtol=0)
+    # The fitted mesh follows the cloud: rotating the input rotates the output body (about the origin).
+    torch.testing.assert_close(out_rot["vertices"], out["vertices"] @ r.T, atol=2e-3, rtol=0)
+
+
+def test_overfits_a_tiny_batch(tiny_batch):
+    module = _module(stage=1, optimizer={"name": "adam", "lr": 3e-3})
+    opt = torch.optim.Adam(module.net.parameters(), lr=3e-3)
+    losses, rot_err = [], []
+    from arteq.training.metrics import geodesic_deg
+
+    for _ in range(80):
+        opt.zero_grad()
+        pred, gt, terms = module._step(tiny_batch, use_gt_parts=True)
+        terms["loss"].backward()
+        opt.step()
+        losses.append(terms["loss"].item())
+        rot_err.append(geodesic_deg(pred["global_rotmats"], gt["global_rotmats"]).mean().item())
+    first, last = sum(losses[:3]) / 3, sum(losses[-3:]) / 3
+    assert last < first / 4, (first, last)
+    assert sum(rot_err[-3:]) / 3 < 0.75 * sum(rot_err[:3]) / 3, (rot_err[:3], rot_err[-3:])
+
+
+def test_stage2_trains_stage1_first_then_finds_it(tmp_path):
+    from arteq.train import train
+
+    out1 = tmp_path / "run_a"
+    s = train(_cfg(tmp_path, "+experiment=stage2", f"paths.output_dir={out1}"))
+    assert s["stage1_init"]["how"] == "trained first in this run"
+    metrics = json.loads((out1 / "metrics.json").read_text())["metrics"]
+    for split in ("test_id", "test_ood"):
+        for key in ("part_acc", "v2v_cm", "mpjpe_cm", "rot_err_deg"):
+            assert torch.isfinite(torch.tensor(metrics[split][key])), (split, key)
+    assert (out1 / "metrics.md").read_text().count("| ArtEq |") == 1
+
+    # A stage-1 run of the same network is found by a later stage-2 run.
+    s1 = train(_cfg(tmp_path, "+experiment=stage1", f"paths.output_dir={tmp_path / 'stage1' / 'r1'}", "test=false"))
+    assert Path(s1["last_ckpt"]).is_file()
+    s2 = train(_cfg(tmp_path, "+experiment=stage2", f"paths.output_dir={tmp_path / 'run_b'}", "test=false"))
+    assert s2["stage1_init"] == {"ckpt": s1["last_ckpt"], "how": "found from a previous stage-1 run"}
+
+    with pytest.raises(FileNotFoundError, match="stage1.ckpt"):
+        train(_cfg(tmp_path, "+experiment=stage2", "stage1.ckpt=/nonexistent.ckpt", f"paths.output_dir={tmp_path}/c"))
+
+
+def test_resume_continues_step_count_and_checkpoints_load_weights_only(tmp_path):
+    from arteq.train import train
+
+    s = train(_cfg(tmp_path, "+experiment=stage1", f"paths.output_dir={tmp_path / 'r'}", "test=false"))
+    ckpt = torch.load(s["last_ckpt"], map_location="cpu", weights_only=True)
+    assert ckpt["global_step"] == 2
+    assert not any(k.startswith("body.") for k in ckpt["state_dict"])  # licensed model data never saved
+    resumed = train(
+        _cfg(tmp_path, "+experiment=stage1", f"paths.output_dir={tmp_path / 'r'}", "test=false",
+             f"ckpt_path={s['last_ckpt']}", "trainer.max_epochs=2")
+    )  # fmt: skip
+    ckpt2 = torch.load(resumed["last_ckpt"], map_location="cpu", weights_only=True)
+    assert ckpt2["global_step"] == 4 and ckpt2["epoch"] == 1
+    module = ArtEqModule.load_from_checkpoint(resumed["last_ckpt"], map_location="cpu", weights_only=True)
+    assert module.hparams.stage == 1
+
+
+def test_eval_entry_point_writes_json_and_markdown(tmp_path):
+    from arteq.eval import evaluate
+    from arteq.train import train
+
+    s = train(_cfg(tmp_path, "+experiment=stage1", f"paths.output_dir={tmp_path / 'r'}", "test=false"))
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        cfg = compose(
+            "eval",
+            overrides=[f"ckpt_path={s['last_ckpt']}", f"output_dir={tmp_path / 'ev'}", "data.num_points=200",
+                       "data.test_size=4", "data.batch_size=2", "data.num_workers=0",
+                       "trainer.enable_progress_bar=false"],
+        )  # fmt: skip
+    evaluate(cfg)
+    out = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+    assert set(out["metrics"]) == {"test_id", "test_ood"}
+    assert "| ArtEq |" in (tmp_path / "ev" / "metrics.md").read_text()
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        bad = compose("eval", overrides=["ckpt_path=/no/such.ckpt"])
+    with pytest.raises(FileNotFoundError, match="no such checkpoint"):
+        evaluate(bad)
