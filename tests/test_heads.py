@@ -22,7 +22,9 @@ def _elements(order: int, count: int = 2) -> list[int]:
 @pytest.mark.parametrize("element", _elements(3) + _elements(5))
 def test_pose_head_is_equivariant(parent_conditioning, element):
     torch.manual_seed(0)
-    head = PoseHead(8, group_rotations(torch.float64), PARENTS, dim=16, heads=4, parent_conditioning=parent_conditioning).double()
+    head = PoseHead(
+        8, group_rotations(torch.float64), PARENTS, dim=16, heads=4, parent_conditioning=parent_conditioning
+    ).double()
     feats = torch.randn(2, 22, 60, 8, dtype=torch.float64)
     out = head(feats)
     out_rot = head(rotate_group_features(feats, element, dim=2))

@@ -125,13 +125,22 @@ def test_stage2_trains_stage1_first_then_finds_it(tmp_path):
     assert (out1 / "metrics.md").read_text().count("| ArtEq |") == 1
 
     # A stage-1 run of the same network is found by a later stage-2 run.
-    s1 = train(_cfg(tmp_path, "+experiment=stage1", f"paths.output_dir={tmp_path / 'stage1' / 'r1'}", "test=false"))
+    s1 = train(
+        _cfg(tmp_path, "+experiment=stage1", f"paths.output_dir={tmp_path / 'stage1' / 'r1'}", "test=false")
+    )
     assert Path(s1["last_ckpt"]).is_file()
     s2 = train(_cfg(tmp_path, "+experiment=stage2", f"paths.output_dir={tmp_path / 'run_b'}", "test=false"))
     assert s2["stage1_init"] == {"ckpt": s1["last_ckpt"], "how": "found from a previous stage-1 run"}
 
     with pytest.raises(FileNotFoundError, match="stage1.ckpt"):
-        train(_cfg(tmp_path, "+experiment=stage2", "stage1.ckpt=/nonexistent.ckpt", f"paths.output_dir={tmp_path}/c"))
+        train(
+            _cfg(
+                tmp_path,
+                "+experiment=stage2",
+                "stage1.ckpt=/nonexistent.ckpt",
+                f"paths.output_dir={tmp_path}/c",
+            )
+        )
 
 
 def test_resume_continues_step_count_and_checkpoints_load_weights_only(tmp_path):

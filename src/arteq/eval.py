@@ -112,7 +112,10 @@ def write_metrics(summary: dict[str, Any], output_dir: Path) -> None:
         rows["mean pose (floor)"] = summary["mean_pose_baseline"]
     md = [f"# {summary.get('task_name', 'run')}: test metrics", "", metrics_table(rows), ""]
     md.append("part_acc in %, v2v/mpjpe in cm (MPJPE over the 22 body joints), rot_err in degrees.")
-    for name, text in (("metrics.json", json.dumps(summary, indent=2, default=str)), ("metrics.md", "\n".join(md))):
+    for name, text in (
+        ("metrics.json", json.dumps(summary, indent=2, default=str)),
+        ("metrics.md", "\n".join(md)),
+    ):
         tmp = output_dir / f".{name}.tmp"
         tmp.write_text(text + "\n")
         tmp.replace(output_dir / name)

@@ -8,7 +8,6 @@ in ``conf/train.yaml`` and recorded in ``metrics.json`` under ``stage1_init``.
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from pathlib import Path
@@ -75,7 +74,9 @@ def find_stage1_checkpoint(cfg: DictConfig) -> Path | None:
     """Newest ``last.ckpt`` of a previous stage-1 run with the same network and body model."""
     root = Path(cfg.paths.output_root) / "stage1"
     want_net = OmegaConf.to_container(cfg.model.net, resolve=True)
-    want_body = {k: v for k, v in OmegaConf.to_container(cfg.body_model, resolve=True).items() if k != "_target_"}
+    want_body = {
+        k: v for k, v in OmegaConf.to_container(cfg.body_model, resolve=True).items() if k != "_target_"
+    }
     candidates = sorted(root.glob("*/checkpoints/last.ckpt"), key=lambda p: p.stat().st_mtime, reverse=True)
     for path in candidates:
         info = _checkpoint_net_config(path)
@@ -88,8 +89,14 @@ def find_stage1_checkpoint(cfg: DictConfig) -> Path | None:
     return None
 
 
-def fit_and_test(cfg: DictConfig, stage: int, output_dir: Path, init_ckpt: Path | None = None,
-                 max_epochs: int | None = None, run_test: bool = True) -> dict[str, Any]:
+def fit_and_test(
+    cfg: DictConfig,
+    stage: int,
+    output_dir: Path,
+    init_ckpt: Path | None = None,
+    max_epochs: int | None = None,
+    run_test: bool = True,
+) -> dict[str, Any]:
     """Train one stage in ``output_dir``; returns paths and (if run_test) test metrics."""
     output_dir.mkdir(parents=True, exist_ok=True)
     datamodule = build_datamodule(cfg)
@@ -121,7 +128,10 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     """Run the configured stage (and stage 1 first if stage 2 needs it); return the summary."""
     L.seed_everything(cfg.seed, workers=True)
     output_dir = Path(cfg.paths.output_dir)
-    summary: dict[str, Any] = {"task_name": cfg.task_name, "config": OmegaConf.to_container(cfg, resolve=True)}
+    summary: dict[str, Any] = {
+        "task_name": cfg.task_name,
+        "config": OmegaConf.to_container(cfg, resolve=True),
+    }
     init_ckpt = None
     if cfg.stage == 2 and cfg.stage1.init:
         if cfg.stage1.ckpt:

@@ -13,7 +13,14 @@ from collections.abc import Mapping
 import torch
 import torch.nn.functional as F
 
-DEFAULT_WEIGHTS = {"pose": 5.0, "global_rot": 5.0, "betas": 50.0, "verts": 100.0, "joints": 100.0, "parts": 5.0}
+DEFAULT_WEIGHTS = {
+    "pose": 5.0,
+    "global_rot": 5.0,
+    "betas": 50.0,
+    "verts": 100.0,
+    "joints": 100.0,
+    "parts": 5.0,
+}
 
 
 def weighted_vertex_mse(pred: torch.Tensor, gt: torch.Tensor, vertex_weights: torch.Tensor) -> torch.Tensor:
