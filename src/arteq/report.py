@@ -1,0 +1,348 @@
+"""Collect runs into the paper's tables and plots: ``python -m arteq.report DIR... [--out DIR]``.
+
+Every folder under the given ones that holds a ``metrics.json`` is a run (training runs of
+``python -m arteq.train``, sweep jobs, and fitter evaluations of ``python -m arteq.fitting.evaluate``).
+Its config comes from ``metrics.json["config"]`` (else ``.hydra/config.yaml``), its curves from
+``csv/metrics.csv``. Method names come from the config: architecture (ArtEq / PointNet++), ``nc``
+without parent conditioning, ``+ SO(3) aug`` / ``+ z aug`` with training augmentation; the point count
+is a column. When several runs share a method and point count, the newest is used (the others are
+listed in ``runs.csv``).
+
+Outputs (Markdown ``report.md`` + one CSV per table, PNG plots):
+- Tab. 1 part accuracy ID / OOD without and with augmentation,
+- Tab. 2 V2V and MPJPE ID / OOD per method (plus the mean-pose floor),
+- Tab. S1 ArtEq by point count,
+- Tab. 3 parameters and inference time per method.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger("arteq.report")
+SPLITS = ("test_id", "test_ood")
+ARCH_NAMES = {"arteq": "ArtEq", "pointnet2": "PointNet++"}
+
+
+@dataclass
+class Run:
+    """One run folder: its test metrics, config and (optional) per-epoch curves."""
+
+    path: Path
+    summary: dict[str, Any]
+    config: dict[str, Any]
+    curves: list[dict[str, float]] = field(default_factory=list)
+
+    @property
+    def metrics(self) -> dict[str, dict[str, Any]]:
+        return self.summary.get("metrics") or {}
+
+    @property
+    def arch(self) -> str:
+        if self.summary.get("method"):
+            return "fitter"
+        return str(_get(self.config, "model.net.arch", "arteq"))
+
+    @property
+    def augment(self) -> str:
+        return str(_get(self.config, "data.augment", "none"))
+
+    @property
+    def num_points(self) -> int | None:
+        n = _get(self.config, "data.num_points", None)
+        return int(n) if n is not None else None
+
+    @property
+    def parent_conditioning(self) -> bool:
+        return bool(_get(self.config, "model.net.parent_conditioning", True))
+
+    @property
+    def base_name(self) -> str:
+        """Method without its augmentation suffix (``ArtEq``, ``ArtEq nc``, ``PointNet++``...)."""
+        if self.summary.get("method"):
+            return str(self.summary["method"])
+        name = ARCH_NAMES.get(self.arch, self.arch)
+        if self.arch == "arteq" and not self.parent_conditioning:
+            name += " nc"
+        return name
+
+    @property
+    def method(self) -> str:
+        aug = {"none": "", "so3": " + SO(3) aug", "z": " + z aug"}.get(self.augment, f" + {self.augment} aug")
+        return self.base_name + ("" if self.summary.get("method") else aug)
+
+    @property
+    def inference_ms(self) -> float | None:
+        """Per-sample time: the fitter's seconds per sample, or a measured network forward time."""
+        fit = self.summary.get("fit")
+        if fit:
+            vals = [v["seconds_per_sample"] for v in fit.values() if "seconds_per_sample" in v]
+            return 1000 * sum(vals) / len(vals) if vals else None
+        return self.summary.get("inference_ms")
+
+    def metric(self, split: str, key: str) -> float | None:
+        v = self.metrics.get(split, {}).get(key)
+        return None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
+
+
+def _get(cfg: dict[str, Any], dotted: str, default: Any) -> Any:
+    cur: Any = cfg
+    for part in dotted.split("."):
+        if not isinstance(cur, dict) or part not in cur:
+            return default
+        cur = cur[part]
+    return cur
+
+
+def read_curves(path: Path) -> list[dict[str, float]]:
+    """Per-epoch validation rows of a Lightning ``metrics.csv`` (rows holding ``val/v2v_cm``)."""
+    if not path.is_file():
+        return []
+    rows = []
+    with path.open(newline="") as f:
+        for row in csv.DictReader(f):
+            if row.get("val/v2v_cm") not in (None, ""):
+                rows.append({k: float(v) for k, v in row.items() if v not in (None, "")})
+    return rows
+
+
+def load_run(run_dir: Path) -> Run:
+    """Read ``metrics.json`` (required), the config and ``csv/metrics.csv`` of one run folder."""
+    mpath = run_dir / "metrics.json"
+    try:
+        summary = json.loads(mpath.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{mpath}: not found") from None
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{mpath}: not valid JSON ({e})") from None
+    if not isinstance(summary, dict) or not isinstance(summary.get("metrics"), dict):
+        raise ValueError(
+            f"{mpath}: expected an object with a 'metrics' mapping {{test_id: ..., test_ood: ...}}"
+        )
+    config = summary.get("config") or {}
+    hydra_cfg = run_dir / ".hydra" / "config.yaml"
+    if not config and hydra_cfg.is_file():
+        from omegaconf import OmegaConf
+
+        config = OmegaConf.to_container(OmegaConf.load(hydra_cfg), resolve=False)
+    return Run(run_dir, summary, config, read_curves(run_dir / "csv" / "metrics.csv"))
+
+
+def find_runs(dirs: list[Path]) -> list[Run]:
+    """Every run under ``dirs`` (a folder with ``metrics.json``; a stage-1 sub-run has none)."""
+    runs = []
+    for d in dirs:
+        if not d.exists():
+            raise FileNotFoundError(f"{d}: no such run or sweep folder")
+        found = sorted(p.parent for p in d.rglob("metrics.json"))
+        if not found:
+            log.warning("%s: no metrics.json found under it", d)
+        runs += [load_run(p) for p in found]
+    return runs
+
+
+def latest_by(runs: list[Run], key) -> dict[Any, Run]:
+    """Newest run (by metrics.json mtime) per key."""
+    out: dict[Any, Run] = {}
+    for r in sorted(runs, key=lambda r: (r.path / "metrics.json").stat().st_mtime):
+        out[key(r)] = r
+    return out
+
+
+def _fmt(x: float | None, digits: int = 2) -> str:
+    return "–" if x is None else f"{x:.{digits}f}"
+
+
+def _md(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 1)]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+
+
+@dataclass
+class Table:
+    name: str
+    title: str
+    header: list[str]
+    rows: list[list[str]]
+
+    def markdown(self) -> str:
+        return f"### {self.title}\n\n" + _md(self.header, self.rows)
+
+    def write_csv(self, out: Path) -> None:
+        with (out / f"{self.name}.csv").open("w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(self.header)
+            w.writerows(self.rows)
+
+
+def _pts(r: Run) -> str:
+    return str(r.num_points) if r.num_points is not None else "–"
+
+
+def build_tables(runs: list[Run]) -> list[Table]:
+    """Tab. 1, Tab. 2, Tab. S1, Tab. 3 from the runs (newest run per method and point count)."""
+    learned = [r for r in runs if r.arch != "fitter"]
+    fitters = [r for r in runs if r.arch == "fitter"]
+    tables = []
+
+    # Tab. 1: part accuracy, without / with augmentation, per (base method, points).
+    by = latest_by(learned, lambda r: (r.base_name, r.num_points, r.augment))
+    keys = sorted({(k[0], k[1]) for k in by}, key=lambda k: (k[0], k[1] or 0))
+    rows = []
+    for name, n in keys:
+        no, so3 = by.get((name, n, "none")), by.get((name, n, "so3"))
+        cells = [
+            _fmt(x.metric(s, "part_acc") if x else None) for x in (no, so3) for s in SPLITS
+        ]  # fmt: skip
+        rows.append([name, str(n) if n is not None else "–", *cells])
+    for r in latest_by(fitters, lambda r: r.method).values():
+        rows.append([r.method, _pts(r), _fmt(r.metric("test_id", "part_acc")),
+                     _fmt(r.metric("test_ood", "part_acc")), "–", "–"])  # fmt: skip
+    tables.append(
+        Table("tab1_part_accuracy", "Tab. 1: part segmentation accuracy (%)",
+              ["method", "points", "ID w/o aug", "OOD w/o aug", "ID w/ SO(3) aug", "OOD w/ SO(3) aug"], rows)
+    )  # fmt: skip
+
+    # Tab. 2: V2V / MPJPE per method.
+    rows = []
+    chosen = latest_by(runs, lambda r: (r.method, r.num_points))
+    for (method, _n), r in sorted(chosen.items(), key=lambda kv: (kv[0][0], kv[0][1] or 0)):
+        rows.append(
+            [method, _pts(r)] + [_fmt(r.metric(s, m)) for m in ("v2v_cm", "mpjpe_cm") for s in SPLITS]
+        )
+    floors = [r for r in learned if r.summary.get("mean_pose_baseline")]
+    if floors:
+        f = latest_by(floors, lambda r: 0)[0].summary["mean_pose_baseline"]
+        rows.append(["mean pose (floor)", "–"] + [_fmt(f.get(s, {}).get(m)) for m in ("v2v_cm", "mpjpe_cm")
+                                                  for s in SPLITS])  # fmt: skip
+    tables.append(
+        Table("tab2_v2v_mpjpe", "Tab. 2: vertex and joint errors (cm, no alignment)",
+              ["method", "points", "V2V ID", "V2V OOD", "MPJPE ID", "MPJPE OOD"], rows)
+    )  # fmt: skip
+
+    # Tab. S1: ArtEq (parent conditioning, no augmentation) by point count.
+    base = [r for r in learned if r.arch == "arteq" and r.parent_conditioning and r.augment == "none"]
+    rows = []
+    for _n, r in sorted(latest_by(base, lambda r: r.num_points).items(), key=lambda kv: kv[0] or 0):
+        rows.append(
+            [_pts(r)] + [_fmt(r.metric(s, m)) for m in ("part_acc", "v2v_cm", "mpjpe_cm") for s in SPLITS]
+        )
+    tables.append(
+        Table("tabS1_points", "Tab. S1: ArtEq by number of input points",
+              ["points", "part acc ID", "part acc OOD", "V2V ID", "V2V OOD", "MPJPE ID", "MPJPE OOD"], rows)
+    )  # fmt: skip
+
+    # Tab. 3: parameters and time.
+    rows = []
+    for (method, _n), r in sorted(chosen.items(), key=lambda kv: (kv[0][0], kv[0][1] or 0)):
+        p = r.summary.get("parameters")
+        train_s = r.summary.get("train_seconds")
+        rows.append([method, _pts(r), f"{int(p):,}" if p is not None else "–", _fmt(r.inference_ms, 1),
+                     _fmt(float(train_s), 0) if train_s is not None else "–"])  # fmt: skip
+    tables.append(
+        Table("tab3_params_time", "Tab. 3: parameters and time per sample",
+              ["method", "points", "parameters", "inference ms / sample", "train s"], rows)
+    )  # fmt: skip
+    return tables
+
+
+def measure_inference_ms(run: Run, repeats: int = 5, batch: int = 1) -> float | None:
+    """Median forward time (ms per cloud, CPU, batch 1) of a run's checkpoint on a random cloud."""
+    from arteq.fitting.evaluate import find_checkpoint
+
+    try:
+        ckpt = find_checkpoint(run.path)
+    except FileNotFoundError:
+        return None
+    import torch
+
+    from arteq.training.module import ArtEqModule
+
+    try:
+        module = ArtEqModule.load_from_checkpoint(str(ckpt), map_location="cpu", weights_only=True).eval()
+    except Exception as e:  # a checkpoint of an older code version: report without its time
+        log.warning("%s: cannot load (%s: %s); no inference time", ckpt, type(e).__name__, e)
+        return None
+    pts = torch.randn(batch, run.num_points or 1000, 3) * 0.3
+    times = []
+    with torch.no_grad():
+        module(pts)
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            module(pts)
+            times.append((time.perf_counter() - t0) * 1000 / batch)
+    return sorted(times)[len(times) // 2]
+
+
+def write_report(runs: list[Run], out: Path, plots: bool = True, qualitative: int = 0,
+                 notes: str = "") -> Path:  # fmt: skip
+    """Write ``report.md``, the table CSVs, ``runs.csv`` and (``plots``) the PNG figures into ``out``."""
+    if not runs:
+        raise ValueError("no runs found (no metrics.json under the given folders)")
+    out.mkdir(parents=True, exist_ok=True)
+    tables = build_tables(runs)
+    for t in tables:
+        t.write_csv(out)
+    with (out / "runs.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["method", "points", "augment", "path", "parameters", "train_seconds"])
+        for r in runs:
+            w.writerow([r.method, _pts(r), r.augment, str(r.path), r.summary.get("parameters"),
+                        r.summary.get("train_seconds")])  # fmt: skip
+    md = ["# ArtEq reproduction: report", ""]
+    if notes:
+        md += [notes, ""]
+    md += [f"{len(runs)} runs: " + ", ".join(f"`{r.path}`" for r in runs), ""]
+    for t in tables:
+        md += [t.markdown(), ""]
+    md.append("Part accuracy in %, V2V / MPJPE in cm (22 body joints), no alignment; OOD = extreme poses "
+              "with random root orientation. Newest run per method and point count.")  # fmt: skip
+    if plots:
+        from arteq.viz import report_plots
+
+        figs = []
+        if any(r.curves for r in runs):
+            figs.append(report_plots.convergence_plot(runs, out / "convergence.png"))
+        if any("rot_err_deg_per_part" in r.metrics.get("test_ood", {}) for r in runs):
+            figs.append(report_plots.per_part_plot(runs, out / "per_part_rot_err.png"))
+        if qualitative:
+            q = report_plots.qualitative_figure(runs, out / "qualitative_ood.png", samples=qualitative)
+            if q is not None:
+                figs.append(q)
+        md += [""] + [f"![{p.stem}]({p.name})" for p in figs]
+    (out / "report.md").write_text("\n".join(md) + "\n")
+    return out / "report.md"
+
+
+def main(argv: list[str] | None = None) -> Path:
+    ap = argparse.ArgumentParser(prog="python -m arteq.report", description=__doc__.split("\n\n")[0])
+    ap.add_argument("dirs", nargs="+", type=Path, help="run or sweep folders (searched recursively)")
+    ap.add_argument("--out", type=Path, default=Path("experiments/report"))
+    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--qualitative", type=int, default=0, metavar="N", help="N OOD samples in a figure")
+    ap.add_argument("--time", action="store_true", help="measure network forward time from checkpoints")
+    ap.add_argument("--notes", default="", help="text put under the title (commands, hardware, times)")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
+    runs = find_runs(args.dirs)
+    if args.time:
+        for r in runs:
+            if r.arch != "fitter" and r.summary.get("inference_ms") is None:
+                r.summary["inference_ms"] = measure_inference_ms(r)
+    path = write_report(
+        runs, args.out, plots=not args.no_plots, qualitative=args.qualitative, notes=args.notes
+    )
+    print(path.read_text())
+    return path
+
+
+if __name__ == "__main__":
+    main()
