@@ -28,7 +28,7 @@ TINY_OVERRIDES = [
     "data.batch_size=2",
     "data.num_workers=0",
     "trainer.max_epochs=1",
-    "trainer.limit_train_batches=2",
+    "+trainer.limit_train_batches=2",
     "trainer.enable_progress_bar=false",
     "model.net.backbone.channels=[8,8,8,8]",
     "model.net.backbone.neighbours=[16,8,16,8]",
@@ -155,6 +155,8 @@ def test_resume_continues_step_count_and_checkpoints_load_weights_only(tmp_path)
              f"ckpt_path={s['last_ckpt']}", "trainer.max_epochs=2")
     )  # fmt: skip
     ckpt2 = torch.load(resumed["last_ckpt"], map_location="cpu", weights_only=True)
+    csvs = sorted((tmp_path / "r" / "csv").glob("**/metrics.csv"))
+    assert len(csvs) == 2  # the first segment's log is kept, the resumed one goes beside it
     assert ckpt2["global_step"] == 4 and ckpt2["epoch"] == 1
     module = ArtEqModule.load_from_checkpoint(resumed["last_ckpt"], map_location="cpu", weights_only=True)
     assert module.hparams.stage == 1

@@ -46,15 +46,20 @@ def build_module(cfg: DictConfig, stage: int) -> ArtEqModule:
     )
 
 
-def build_trainer(cfg: DictConfig, output_dir: Path, max_epochs: int | None = None) -> L.Trainer:
+def build_trainer(
+    cfg: DictConfig, output_dir: Path, max_epochs: int | None = None, resuming: bool = False
+) -> L.Trainer:
     callbacks = _instantiate_dict(cfg.get("callbacks"))
     for cb in callbacks:  # keep checkpoints inside the (sub-)run folder
         if isinstance(cb, L.pytorch.callbacks.ModelCheckpoint):
             cb.dirpath = str(output_dir / "checkpoints")
     loggers = []
-    for lg_cfg in (cfg.get("logger") or {}).values():
+    for name, lg_cfg in (cfg.get("logger") or {}).items():
         if lg_cfg is not None and "_target_" in lg_cfg:
-            loggers.append(hydra.utils.instantiate(lg_cfg, save_dir=str(output_dir)))
+            extra = {}
+            if resuming and name == "csv":  # CSVLogger would delete the earlier metrics.csv
+                extra["version"] = time.strftime("resumed-%Y%m%d-%H%M%S")
+            loggers.append(hydra.utils.instantiate(lg_cfg, save_dir=str(output_dir), **extra))
     kwargs: dict[str, Any] = {"default_root_dir": str(output_dir)}
     if max_epochs is not None:
         kwargs["max_epochs"] = max_epochs
@@ -103,11 +108,12 @@ def fit_and_test(
     module = build_module(cfg, stage)
     if init_ckpt is not None:
         module.load_net_weights(str(init_ckpt))
-    trainer = build_trainer(cfg, output_dir, max_epochs=max_epochs)
+    resume = cfg.get("ckpt_path") if stage == cfg.stage else None
+    trainer = build_trainer(cfg, output_dir, max_epochs=max_epochs, resuming=bool(resume))
     n_params = sum(p.numel() for p in module.net.parameters())
     log.info("stage %d: ArtEq network with %s parameters -> %s", stage, f"{n_params:,}", output_dir)
     t0 = time.time()
-    trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.get("ckpt_path") if stage == cfg.stage else None)
+    trainer.fit(module, datamodule=datamodule, ckpt_path=resume)
     result: dict[str, Any] = {
         "stage": stage,
         "parameters": n_params,
