@@ -182,3 +182,15 @@ def test_eval_entry_point_writes_json_and_markdown(tmp_path):
         bad = compose("eval", overrides=["ckpt_path=/no/such.ckpt"])
     with pytest.raises(FileNotFoundError, match="no such checkpoint"):
         evaluate(bad)
+
+
+@pytest.mark.parametrize("stage", [1, 2])
+def test_fast_dev_run_each_stage(tmp_path, stage):
+    from arteq.train import train
+
+    s = train(
+        _cfg(tmp_path, f"+experiment=stage{stage}", "+trainer.fast_dev_run=true", "stage1.init=false",
+             f"paths.output_dir={tmp_path / 'r'}")
+    )  # fmt: skip
+    for split in ("test_id", "test_ood"):
+        assert s["metrics"][split]["v2v_cm"] > 0
