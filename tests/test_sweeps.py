@@ -83,7 +83,8 @@ def test_baseline_experiments():
 def test_tiny_multirun_unique_dirs_and_report(tmp_path):
     env = dict(os.environ, ARTEQ_OUTPUT_ROOT=str(tmp_path / "out"))
     tiny = ["data.train_size=4", "data.val_size=2", "data.test_size=2", "data.batch_size=2",
-            "data.num_points=200", "data.num_workers=0", "trainer.max_epochs=1", "stage1.epochs=1", "mean_pose_baseline=false",
+            "data.num_points=200", "data.num_workers=0", "trainer.max_epochs=1", "stage1.epochs=1",
+            "mean_pose_baseline=false",
             "model.net.backbone.channels=[4,4,4,4]", "model.net.backbone.neighbours=[8,8,8,8]",
             "trainer.enable_progress_bar=false"]  # fmt: skip
     cmd = [sys.executable, "-m", "arteq.train", "-m", "+experiment=ablation_nc", *tiny]
