@@ -228,7 +228,7 @@ class ArtEqModule(L.LightningModule):
                 if step < warmup:
                     return (step + 1) / warmup
                 t = min(1.0, (step - warmup) / max(1, total - warmup))
-                return min_ratio + (1 - min_ratio) * 0.5 * (1 + np.cos(np.pi * t))
+                return float(min_ratio + (1 - min_ratio) * 0.5 * (1 + np.cos(np.pi * t)))  # plain float: weights_only ckpts
 
             sched = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
             return {"optimizer": optimizer, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
