@@ -228,7 +228,8 @@ class ArtEqModule(L.LightningModule):
                 if step < warmup:
                     return (step + 1) / warmup
                 t = min(1.0, (step - warmup) / max(1, total - warmup))
-                return float(min_ratio + (1 - min_ratio) * 0.5 * (1 + np.cos(np.pi * t)))  # plain float: weights_only ckpts
+                # plain float: a numpy scalar in the scheduler state breaks weights_only checkpoint loading
+                return float(min_ratio + (1 - min_ratio) * 0.5 * (1 + np.cos(np.pi * t)))
 
             sched = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
             return {"optimizer": optimizer, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
