@@ -117,6 +117,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument(
         "--refine", default=None, metavar="RUN_DIR", help="start from this ArtEq run's prediction"
     )
+    ap.add_argument("--data-from", default=None, metavar="RUN_DIR", help="use this run's data config")
     ap.add_argument("--samples", type=int, default=16, help="test clouds fitted per split")
     ap.add_argument("--num-points", type=int, default=1000, help="points per cloud (without --refine)")
     ap.add_argument("--body", default="anny22", help="body model name (without --refine)")
@@ -141,6 +142,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         data_cfg = {k: v for k, v in run_cfg["data"].items() if k not in ("_target_", "body_model")}
         body_cfg = dict(module.hparams.body_model)
         method = "ArtEq + refinement"
+    elif args.data_from:
+        run_cfg = load_run_data_config(Path(args.data_from))
+        data_cfg = {k: v for k, v in run_cfg["data"].items() if k not in ("_target_", "body_model")}
+        body_cfg = {k: v for k, v in run_cfg["body_model"].items() if k != "_target_"}
+        method = "Optimisation (Chamfer)"
     else:
         data_cfg = {"source": "synthetic", "num_points": args.num_points}
         body_cfg = {"name": args.body}
