@@ -25,6 +25,7 @@ def test_pose_head_is_equivariant(parent_conditioning, element):
     head = PoseHead(
         8, group_rotations(torch.float64), PARENTS, dim=16, heads=4, parent_conditioning=parent_conditioning
     ).double()
+    torch.nn.init.normal_(head.part_embedding)  # zero at init: make it matter
     feats = torch.randn(2, 22, 60, 8, dtype=torch.float64)
     out = head(feats)
     out_rot = head(rotate_group_features(feats, element, dim=2))

@@ -10,6 +10,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+import arteq  # noqa: F401  (registers the resolvers conf/ uses)
+
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 SWEEPS = {
     "ablation_nc": {"model.net.parent_conditioning": "true,false"},
@@ -87,16 +89,38 @@ def test_tiny_multirun_unique_dirs_and_report(tmp_path):
             "mean_pose_baseline=false",
             "model.net.backbone.channels=[4,4,4,4]", "model.net.backbone.neighbours=[8,8,8,8]",
             "trainer.enable_progress_bar=false"]  # fmt: skip
+    env.pop("WANDB_API_KEY", None)
+    env.update(WANDB_MODE="offline", WANDB_SILENT="true", NETRC=str(tmp_path / "no-netrc"))
     cmd = [sys.executable, "-m", "arteq.train", "-m", "+experiment=ablation_nc", *tiny]
-    for _ in range(2):  # re-running must not clobber the first sweep
-        subprocess.run(cmd, check=True, env=env, capture_output=True, timeout=900)
+    for logger in ("wandb", "csv"):  # re-running must not clobber the first sweep
+        subprocess.run(cmd + [f"logger={logger}"], check=True, env=env, capture_output=True, timeout=900)
     sweeps = sorted((tmp_path / "out" / "multirun" / "ablation_nc").iterdir())
     assert len(sweeps) == 2
     jobs = [p.parent for p in (tmp_path / "out").rglob("metrics.json")]
     assert len(jobs) == 4 and len(set(jobs)) == 4
+    # wandb (offline): one run per job and stage (stage 1 is trained inside each stage-2 job)
+    wandb_runs = sorted(p.name for p in sweeps[0].rglob("offline-run-*"))
+    assert len(wandb_runs) == 4 and len(set(wandb_runs)) == 4
+    for job in ("0", "1"):
+        assert len(list((sweeps[0] / job / "wandb").glob("offline-run-*"))) == 1
+        assert len(list((sweeps[0] / job / "stage1" / "wandb").glob("offline-run-*"))) == 1
     from arteq.report import find_runs, write_report
 
     runs = find_runs([tmp_path / "out"])
     assert sorted(r.method for r in runs) == ["ArtEq", "ArtEq", "ArtEq nc", "ArtEq nc"]
     text = write_report(runs, tmp_path / "report", plots=False).read_text()
     assert "| ArtEq nc | 200 |" in text
+
+
+def test_backbone_radii_follow_point_density():
+    from arteq.config import radii_for_points
+
+    paper = [0.08, 0.113, 0.16, 0.16]
+    for n in (500, 1000, 2500, 5000):
+        radii = _compose([f"data.num_points={n}"]).model.net.backbone.radii
+        assert list(radii) == radii_for_points(paper, n)
+        # same expected ball population (points per area ~ N) as the paper's radii at 5000 points
+        assert abs(radii[0] ** 2 * n - 0.08**2 * 5000) < 0.01 * 0.08**2 * 5000
+    assert list(_compose(["data.num_points=5000"]).model.net.backbone.radii) == paper
+    with pytest.raises(ValueError, match="point counts"):
+        radii_for_points(paper, 0)

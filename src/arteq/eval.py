@@ -15,11 +15,13 @@ from typing import Any
 
 import hydra
 import lightning as L
+import roma
 import torch
 import torch.nn.functional as F
 from omegaconf import DictConfig, OmegaConf
 
 from arteq.body.skeleton import local_to_global
+from arteq.data.dataset import seeded_generator
 from arteq.models.placement import estimate_translation
 from arteq.training.metrics import BodyFitMetrics
 from arteq.training.module import TEST_SPLITS, ArtEqModule
@@ -51,7 +53,8 @@ def test_module(module: ArtEqModule, datamodule, trainer: L.Trainer, ckpt_path: 
 def evaluate_mean_pose(cfg: DictConfig, train_samples: int = 256) -> dict[str, dict[str, float]]:
     """The floor: predict the training set's mean pose and mean shape, placed like ArtEq places bodies.
 
-    Mean local rotation per joint = SO(3) projection of the average training rotation matrix;
+    Mean local rotation per joint = SO(3) projection of the average training rotation matrix (training
+    poses before any rotation augmentation);
     betas = 0 (the shape space's mean). Translation uses the ground-truth part labels (generous).
     """
     from arteq.train import build_datamodule, build_module
@@ -60,12 +63,14 @@ def evaluate_mean_pose(cfg: DictConfig, train_samples: int = 256) -> dict[str, d
     dm.setup("fit")
     module = build_module(cfg, stage=cfg.stage)
     body = module.body
-    train_ds = dm.train_dataloader().dataset
-    n = min(train_samples, len(train_ds)) if hasattr(train_ds, "__len__") else train_samples
-    poses = torch.stack([train_ds[i]["pose"] for i in range(n)])
-    import roma
-
-    mean_local = roma.special_procrustes(poses.double().mean(0)).float()  # [22, 3, 3]
+    # the training poses without rotation augmentation: with so3 augmentation the mean root
+    # orientation would be meaningless, and this floor is about the pose distribution itself
+    train_ds = dm.make_dataset("train")
+    n = min(train_samples, len(train_ds))
+    src, seed = train_ds.source, train_ds.seed
+    poses = torch.stack([src.sample(i, seeded_generator(seed, "train", i, "pose"))["pose"] for i in range(n)])
+    poses = roma.rotvec_to_rotmat(poses.double())
+    mean_local = roma.special_procrustes(poses.mean(0)).float()  # [22, 3, 3]
     dm.setup("test")
     out: dict[str, dict[str, float]] = {}
     for split, loader in zip(TEST_SPLITS, dm.test_dataloader()):

@@ -59,11 +59,50 @@ def build_trainer(
             extra = {}
             if resuming and name == "csv":  # CSVLogger would delete the earlier metrics.csv
                 extra["version"] = time.strftime("resumed-%Y%m%d-%H%M%S")
+            if name == "wandb":
+                extra.update(wandb_run_names(cfg, output_dir, lg_cfg))
             loggers.append(hydra.utils.instantiate(lg_cfg, save_dir=str(output_dir), **extra))
     kwargs: dict[str, Any] = {"default_root_dir": str(output_dir)}
     if max_epochs is not None:
         kwargs["max_epochs"] = max_epochs
     return hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False, **kwargs)
+
+
+def wandb_run_names(cfg: DictConfig, output_dir: Path, lg_cfg: DictConfig) -> dict[str, str]:
+    """Dashboard group and run name: one wandb run per (sweep job, stage), grouped by sweep.
+
+    Multirun: group = ``<task>/<sweep folder>``, name = ``job<N>: <overrides>``; single run: group =
+    task name, name = run folder. A stage 1 trained inside a stage-2 run gets a ``/stage1`` suffix.
+    Values set explicitly in ``logger.wandb`` win.
+    """
+    group, name = cfg.task_name, Path(cfg.paths.output_dir).name
+    try:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        hc = HydraConfig.get()
+        if hc.mode == RunMode.MULTIRUN:
+            group = f"{cfg.task_name}/{Path(hc.sweep.dir).name}"
+            name = f"job{hc.job.num}" + (f": {hc.job.override_dirname}" if hc.job.override_dirname else "")
+    except (ValueError, ImportError):  # not running under Hydra (tests, notebooks)
+        pass
+    if output_dir != Path(cfg.paths.output_dir):
+        name = f"{name}/{output_dir.name}"
+    out = {}
+    if not lg_cfg.get("group"):
+        out["group"] = group
+    if not lg_cfg.get("name"):
+        out["name"] = name
+    return out
+
+
+def finish_wandb(trainer: L.Trainer) -> None:
+    """Close the wandb run of ``trainer`` so that the next stage / sweep job opens its own run."""
+    from lightning.pytorch.loggers import WandbLogger
+
+    for lg in trainer.loggers:
+        if isinstance(lg, WandbLogger):
+            lg.experiment.finish()
 
 
 def _checkpoint_net_config(path: Path) -> dict | None:
@@ -127,6 +166,7 @@ def fit_and_test(
 
         ckpt = result["best_ckpt"] or None
         result["metrics"] = test_module(module, datamodule, trainer, ckpt_path=ckpt)
+    finish_wandb(trainer)
     return result
 
 

@@ -87,8 +87,10 @@ class PoseHead(nn.Module):
     variance: statistics over the tokens, hence permutation-invariant) and scaled by a learned
     sharpness ``s`` (initialised to ``sharpness``); the weights ``p = softmax(s * z)`` are convex, and
     ``M_k = sum_a p_a R_a``; the rotation is the SO(3) projection of ``M_k`` (SVD, the closed form of
-    the weighted chordal mean). Permuting the tokens as a group rotation ``g`` does permutes ``p``,
-    so ``M_k -> R_g M_k`` and the output rotation is left-multiplied by ``R_g``: equivariant.
+    the weighted chordal mean). A learned per-part embedding (``part_embedding``) is added to all tokens
+    of a part: the head is shared across parts and this tells it which one it reads. Permuting the
+    tokens as a group rotation ``g`` does permutes ``p``, so ``M_k -> R_g M_k`` and the output
+    rotation is left-multiplied by ``R_g``: equivariant.
 
     Why not raw weights (the authors' code): the 60 group rotations sum to zero, so raw weights that
     start out nearly equal put ``M`` near zero, where the SVD derivative (``1 / (s_i + s_j)``)
@@ -114,6 +116,7 @@ class PoseHead(nn.Module):
         parent_conditioning: bool = True,
         sharpness: float = 3.0,
         gradient_eps: float = 1e-3,
+        part_embedding: bool = True,
     ):
         super().__init__()
         self.parent_conditioning = parent_conditioning
@@ -121,6 +124,11 @@ class PoseHead(nn.Module):
         self.register_buffer("group_rotations", group_rotations.double().clone(), persistent=False)
         d_in = 2 * in_channels if parent_conditioning else in_channels
         self.embed = nn.Linear(d_in, dim)
+        # Which part the tokens belong to: one learned vector per part, added to all 60 of its tokens
+        # alike (so group permutations of the tokens commute with it: equivariance is kept). Without
+        # it the shared head must guess from local shape whether a limb-like feature is an arm (rest
+        # pose horizontal) or a leg (rest pose vertical).
+        self.part_embedding = nn.Parameter(torch.zeros(len(parents), dim)) if part_embedding else None
         # Residual connections on every layer: without one, attention that starts out near-uniform
         # replaces all 60 tokens by their mean and erases the group signal the weights are read from.
         self.attn = nn.ModuleList([GroupSelfAttention(dim, heads) for _ in range(layers)])
@@ -138,7 +146,10 @@ class PoseHead(nn.Module):
         x = part_feats
         if self.parent_conditioning:
             x = torch.cat([x, x[:, self.parents]], dim=-1)
-        x = self.embed(x).reshape(b * k, a, -1)
+        x = self.embed(x)
+        if self.part_embedding is not None:
+            x = x + self.part_embedding[:, None, :]
+        x = x.reshape(b * k, a, -1)
         for layer in self.attn:
             x = layer(x)
         logits = self.mlp(x).reshape(b, k, a)

@@ -1,0 +1,28 @@
+"""OmegaConf resolvers used by ``conf/`` (registered when :mod:`arteq` is imported)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+
+def radii_for_points(radii: Sequence[float], num_points: int, reference_points: int = 5000) -> list[float]:
+    """Ball radii given for ``reference_points`` input points, scaled to keep the same number of
+    neighbours at ``num_points``: points per area scale with N, so radii scale with ``sqrt(ref / N)``.
+
+    The paper's radii (0.08 ... 0.16 m) are for 5000 points; at 500 points they would hold ~5 of the
+    32 neighbours a layer asks for, and the kernels would see almost nothing.
+    """
+    num_points, reference_points = int(num_points), int(reference_points)
+    if num_points < 1 or reference_points < 1:
+        raise ValueError(f"radii_for_points: point counts must be >= 1, got {num_points}, {reference_points}")
+    s = math.sqrt(reference_points / num_points)
+    return [round(float(r) * s, 4) for r in radii]
+
+
+def register_resolvers() -> None:
+    """Register ``${arteq.radii:RADII,N[,REF]}`` (idempotent)."""
+    from omegaconf import OmegaConf
+
+    if not OmegaConf.has_resolver("arteq.radii"):
+        OmegaConf.register_new_resolver("arteq.radii", lambda r, n, ref=5000: radii_for_points(list(r), n, ref))
