@@ -132,6 +132,11 @@ def test_stage2_trains_stage1_first_then_finds_it(tmp_path):
     assert Path(s1["last_ckpt"]).is_file()
     s2 = train(_cfg(tmp_path, "+experiment=stage2", f"paths.output_dir={tmp_path / 'run_b'}", "test=false"))
     assert s2["stage1_init"] == {"ckpt": s1["last_ckpt"], "how": "found from a previous stage-1 run"}
+    # ... but not by one trained on other data (here: with rotation augmentation)
+    from arteq.train import find_stage1_checkpoint
+
+    assert find_stage1_checkpoint(_cfg(tmp_path, "+experiment=stage2", "data.augment=so3")) is None
+    assert find_stage1_checkpoint(_cfg(tmp_path, "+experiment=stage2")) == Path(s1["last_ckpt"])
 
     with pytest.raises(FileNotFoundError, match="stage1.ckpt"):
         train(

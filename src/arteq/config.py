@@ -25,4 +25,6 @@ def register_resolvers() -> None:
     from omegaconf import OmegaConf
 
     if not OmegaConf.has_resolver("arteq.radii"):
-        OmegaConf.register_new_resolver("arteq.radii", lambda r, n, ref=5000: radii_for_points(list(r), n, ref))
+        OmegaConf.register_new_resolver(
+            "arteq.radii", lambda r, n, ref=5000: radii_for_points(list(r), n, ref)
+        )

@@ -43,6 +43,7 @@ def build_module(cfg: DictConfig, stage: int) -> ArtEqModule:
         scheduler=cfg.model.scheduler,
         markers=cfg.model.markers,
         marker_weight=cfg.model.marker_weight,
+        data=cfg.data,
     )
 
 
@@ -105,22 +106,36 @@ def finish_wandb(trainer: L.Trainer) -> None:
             lg.experiment.finish()
 
 
+#: Data settings a found stage-1 checkpoint must share with the stage-2 run (what the clouds look like).
+STAGE1_DATA_KEYS = ("source", "num_points", "augment", "noise_std", "density_contrast", "density_wavelength",
+                    "beta_scale", "amass_root")  # fmt: skip
+
+
+def _data_signature(data: dict | None) -> dict:
+    data = data or {}
+    return {k: data.get(k) for k in STAGE1_DATA_KEYS}
+
+
 def _checkpoint_net_config(path: Path) -> dict | None:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:  # unreadable or foreign file: not a candidate
         return None
     hp = ckpt.get("hyper_parameters", {})
-    return {"net": hp.get("net"), "body": hp.get("body_model"), "stage": hp.get("stage")}
+    keys = {"net": "net", "body": "body_model", "stage": "stage", "data": "data"}
+    return {k: hp.get(key) for k, key in keys.items()}
 
 
 def find_stage1_checkpoint(cfg: DictConfig) -> Path | None:
-    """Newest ``last.ckpt`` of a previous stage-1 run with the same network and body model."""
+    """Newest ``last.ckpt`` of a previous stage-1 run with the same network, body model and kind of
+    data (``STAGE1_DATA_KEYS``: e.g. a stage 1 trained without rotation augmentation is not reused by an
+    augmented stage 2)."""
     root = Path(cfg.paths.output_root) / "stage1"
     want_net = OmegaConf.to_container(cfg.model.net, resolve=True)
     want_body = {
         k: v for k, v in OmegaConf.to_container(cfg.body_model, resolve=True).items() if k != "_target_"
     }
+    want_data = _data_signature(OmegaConf.to_container(cfg.data, resolve=True))
     candidates = sorted(root.glob("*/checkpoints/last.ckpt"), key=lambda p: p.stat().st_mtime, reverse=True)
     for path in candidates:
         info = _checkpoint_net_config(path)
@@ -128,7 +143,11 @@ def find_stage1_checkpoint(cfg: DictConfig) -> Path | None:
             continue
         net = dict(info["net"] or {})
         net.pop("num_betas", None)
-        if net == {k: v for k, v in want_net.items() if k != "num_betas"} and info["body"] == want_body:
+        if (
+            net == {k: v for k, v in want_net.items() if k != "num_betas"}
+            and info["body"] == want_body
+            and _data_signature(info["data"]) == want_data
+        ):
             return path
     return None
 

@@ -77,6 +77,8 @@ class ArtEqModule(L.LightningModule):
         optimizer: ``{"name": "adam"|"adamw", "lr": ..., "weight_decay": ...}``.
         scheduler: ``{"name": "none"|"cosine"|"step", ...}``.
         markers: number of marker vertices weighted ``marker_weight`` in the vertex loss.
+        data: the data configuration trained on; recorded in checkpoints (provenance, and so that a
+            stage-2 run only picks up a stage-1 run trained on the same kind of data), not used here.
     """
 
     def __init__(
@@ -89,6 +91,7 @@ class ArtEqModule(L.LightningModule):
         scheduler: Mapping[str, Any] | None = None,
         markers: int = 64,
         marker_weight: float = 2.0,
+        data: Mapping[str, Any] | None = None,
     ):
         super().__init__()
         net = dict(_plain(net) or {})
@@ -105,6 +108,7 @@ class ArtEqModule(L.LightningModule):
                 "scheduler": dict(_plain(scheduler) or {"name": "none"}),
                 "markers": markers,
                 "marker_weight": marker_weight,
+                "data": dict(_plain(data) or {}),
             }
         )
         self.body = load_body_model(**body_model)
