@@ -57,7 +57,7 @@ def evaluate_mean_pose(cfg: DictConfig, train_samples: int = 256) -> dict[str, d
     poses before any rotation augmentation);
     betas = 0 (the shape space's mean). Translation uses the ground-truth part labels (generous).
     """
-    from arteq.train import build_datamodule, build_module
+    from arteq.training.build import build_datamodule, build_module
 
     dm = build_datamodule(cfg)
     dm.setup("fit")
@@ -134,7 +134,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
         raise FileNotFoundError(f"ckpt_path={ckpt}: no such checkpoint file")
     module = ArtEqModule.load_from_checkpoint(str(ckpt), map_location="cpu", weights_only=True)
     cfg.body_model = OmegaConf.create(module.hparams.body_model)
-    from arteq.train import build_datamodule
+    from arteq.training.build import build_datamodule
 
     datamodule = build_datamodule(cfg)
     trainer = hydra.utils.instantiate(cfg.trainer, logger=False, callbacks=[])

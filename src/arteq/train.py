@@ -18,7 +18,9 @@ import lightning as L
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from arteq.training.module import ArtEqModule
+from arteq.training.build import build_datamodule, build_module
+
+__all__ = ["build_datamodule", "build_module", "train", "main"]
 
 log = logging.getLogger("arteq.train")
 
@@ -27,24 +29,6 @@ def _instantiate_dict(cfg: DictConfig | None) -> list[Any]:
     if not cfg:
         return []
     return [hydra.utils.instantiate(c) for c in cfg.values() if c is not None and "_target_" in c]
-
-
-def build_datamodule(cfg: DictConfig) -> L.LightningDataModule:
-    return hydra.utils.instantiate(cfg.data, body_model=OmegaConf.to_container(cfg.body_model, resolve=True))
-
-
-def build_module(cfg: DictConfig, stage: int) -> ArtEqModule:
-    return ArtEqModule(
-        net=cfg.model.net,
-        body_model=cfg.body_model,
-        stage=stage,
-        loss_weights=cfg.model.loss_weights,
-        optimizer=cfg.model.optimizer,
-        scheduler=cfg.model.scheduler,
-        markers=cfg.model.markers,
-        marker_weight=cfg.model.marker_weight,
-        data=cfg.data,
-    )
 
 
 def build_trainer(
