@@ -21,7 +21,6 @@ import torch.nn.functional as F
 from omegaconf import DictConfig, OmegaConf
 
 from arteq.body.skeleton import local_to_global
-from arteq.data.dataset import seeded_generator
 from arteq.models.placement import estimate_translation
 from arteq.training.metrics import BodyFitMetrics
 from arteq.training.module import TEST_SPLITS, ArtEqModule
@@ -67,8 +66,7 @@ def evaluate_mean_pose(cfg: DictConfig, train_samples: int = 256) -> dict[str, d
     # orientation would be meaningless, and this floor is about the pose distribution itself
     train_ds = dm.make_dataset("train")
     n = min(train_samples, len(train_ds))
-    src, seed = train_ds.source, train_ds.seed
-    poses = torch.stack([src.sample(i, seeded_generator(seed, "train", i, "pose"))["pose"] for i in range(n)])
+    poses = torch.stack([train_ds.source_sample(i)["pose"] for i in range(n)])
     poses = roma.rotvec_to_rotmat(poses.double())
     mean_local = roma.special_procrustes(poses.mean(0)).float()  # [22, 3, 3]
     dm.setup("test")

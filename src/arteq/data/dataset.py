@@ -118,12 +118,16 @@ class BodyScanDataset(Dataset):
             if threads != 1:
                 torch.set_num_threads(threads)
 
+    def source_sample(self, index: int) -> dict:
+        """The pose source's raw sample behind ``self[index]`` (before rotation augmentation)."""
+        return self.source.sample(index, seeded_generator(self.seed, self.split, int(index), "pose"))
+
     def _make(self, index: int) -> dict[str, torch.Tensor]:
         index = int(index)
         if index < 0:
             raise IndexError(f"index must be >= 0, got {index}")
         key = (self.seed, self.split, index)
-        src = self.source.sample(index, seeded_generator(*key, "pose"))
+        src = self.source_sample(index)
         pose = src["pose"]
         if pose.shape != (22, 3) or not torch.isfinite(pose).all():
             raise ValueError(
