@@ -212,6 +212,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
 
 @hydra.main(version_base="1.3", config_path="../../conf", config_name="train")
 def main(cfg: DictConfig) -> float | None:
+    from arteq.runtime import tune_cpu_allocator
+
+    tune_cpu_allocator()
     summary = train(cfg)
     metrics = summary.get("metrics", {})
     # Returned for Hydra sweepers: the OOD vertex error.

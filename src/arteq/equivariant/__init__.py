@@ -1,6 +1,7 @@
 """Discretised SE(3)-equivariant layers over the 60-element icosahedral group (EPN-style, pure PyTorch)."""
 
 from .backbone import EquivariantBackbone
+from .fast_ops import group_conv_fourier, reference_ops
 from .group import (
     GROUP_SIZE,
     KERNEL_KINDS,
@@ -27,6 +28,7 @@ __all__ = [
     "cayley_table",
     "element_orders",
     "group_conv",
+    "group_conv_fourier",
     "group_conv_index",
     "group_neighbourhood",
     "group_rotations",
@@ -35,6 +37,7 @@ __all__ = [
     "kernel_permutation",
     "kernel_points",
     "left_permutations",
+    "reference_ops",
     "rotate_group_features",
     "rotated_kernel_points",
     "rotation_angles",

@@ -7,9 +7,9 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from arteq.geometry.pointops import centroid_nearest_index, farthest_point_sample, three_nn_interpolate
+from arteq.geometry.pointops import centroid_nearest_index, farthest_point_sample, knn, three_nn_interpolate
 
-from .group import GROUP_SIZE
+from .fast_ops import interpolate_csr, use_reference
 from .layers import DEFAULT_CHUNK_ELEMS, SeparableConvBlock
 
 
@@ -142,7 +142,7 @@ class EquivariantBackbone(nn.Module):
                 raise ValueError(f"EquivariantBackbone: fps_idx must be long indices in [0, {n})")
             fps_idx = fps_idx[:, :need].to(points.device)
         xyz = points
-        feats = points.new_ones(b, n, GROUP_SIZE, 1)
+        feats = None  # the constant input 1 (see SeparableConvBlock.forward)
         downsampled = False
         for block, stride, m in zip(self.blocks, self.strides, counts):
             centres = None
@@ -155,4 +155,17 @@ class EquivariantBackbone(nn.Module):
             xyz, feats = block(xyz, feats, centres)
         if xyz.shape[1] == n and not downsampled:
             return feats
-        return three_nn_interpolate(points, xyz, feats)
+        if use_reference():
+            return three_nn_interpolate(points, xyz, feats)
+        return upsample_3nn(points, xyz, feats)
+
+
+def upsample_3nn(
+    query: torch.Tensor, ref: torch.Tensor, feats: torch.Tensor, eps: float = 1e-8
+) -> torch.Tensor:
+    """:func:`arteq.geometry.pointops.three_nn_interpolate` (same weights, float64 geometry) as a CSR
+    product: [B, M, 3], [B, N, 3], [B, N, *F] -> [B, M, *F]."""
+    d, idx = knn(query, ref, min(3, ref.shape[1]))
+    w = 1.0 / (d + eps)
+    w = w / w.sum(-1, keepdim=True)
+    return interpolate_csr(idx, w.to(feats.dtype), feats)

@@ -17,6 +17,11 @@ output centres.
 - Group conv: ``out[g] = sum_k f[cayley[g, H[k]]] @ W_k`` over the 13-element neighbourhood ``H``.
 - Instance norm: per sample and channel, over points and group elements, no affine. Convolution
   biases are omitted (a per-channel constant is removed by the following norm anyway).
+
+Speed (same results, see :mod:`arteq.equivariant.fast_ops`): the group conv runs in the group's Fourier
+basis, the closed-kernel re-index is a permutation whose backward gathers, neighbour features are
+gathered as rows, and a block whose input is the constant 1 (the first layer) sums kernel weights
+instead of gathering features. ``fast_ops.reference_ops()`` restores the reference forms.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from torch.utils.checkpoint import checkpoint as _checkpoint
 
 from arteq.geometry.pointops import ball_query, gather
 
+from .fast_ops import gather_rows, group_conv_fourier, permute_axis, use_reference
 from .group import GROUP_SIZE, group_conv_index, kernel_permutation, rotated_kernel_points
 
 #: Default budget (elements) of the largest per-chunk intermediate.
@@ -37,10 +43,14 @@ DEFAULT_CHUNK_ELEMS = 1 << 24
 
 
 def instance_norm(x: torch.Tensor, eps: float = 1e-5) -> torch.Tensor:
-    """Normalise x [B, N, A, C] per sample and channel over points and group elements (no affine)."""
-    mean = x.mean(dim=(1, 2), keepdim=True)
-    var = x.var(dim=(1, 2), keepdim=True, unbiased=False)
-    return (x - mean) * torch.rsqrt(var + eps)
+    """Normalise x [B, N, A, C] per sample and channel over points and group elements (no affine).
+
+    Statistics in at least float32 (also under autocast: bf16 sums over 10^5 elements lose digits).
+    """
+    with torch.autocast(x.device.type, enabled=False):
+        xf = x.float() if x.dtype in (torch.float16, torch.bfloat16) else x
+        var, mean = torch.var_mean(xf, dim=(1, 2), keepdim=True, unbiased=False)
+        return (xf - mean) * torch.rsqrt(var + eps)
 
 
 def spatial_aggregate(
@@ -81,11 +91,35 @@ def spatial_aggregate_closed(
     w = F.relu(1.0 - d2 / sigma) * mask[:, :, None, :].to(rel.dtype)
     g = torch.matmul(w, nb_feats.reshape(b, m, k, a * c)).reshape(b, m, j * a, c)  # [B,M,(J A),C]
     flat = perm * a + torch.arange(a, device=perm.device)[:, None]  # [A, J]: (pi[a,j], a)
-    return g[:, :, flat.reshape(-1)].reshape(b, m, a, j, c)
+    if use_reference():
+        return g[:, :, flat.reshape(-1)].reshape(b, m, a, j, c)
+    flat = flat.reshape(-1)
+    return permute_axis(g, flat, torch.argsort(flat), 2).reshape(b, m, a, j, c)
+
+
+def kernel_weight_sums(
+    rel: torch.Tensor, mask: torch.Tensor, kernels: torch.Tensor, sigma: float, perm: torch.Tensor | None
+) -> torch.Tensor:
+    """``sum_n max(0, 1 - |rel_n - R_a k_j|^2 / sigma) * mask_n`` ``[B, M, A, J]``: the spatial aggregate of
+    a constant feature 1 (the first layer's input). ``kernels``: ``[J, 3]`` with ``perm`` (closed set) or
+    the rotated set ``[A, J, 3]`` with ``perm=None``."""
+    mk = mask.to(rel.dtype)
+    if perm is not None:
+        d2 = (rel[:, :, None, :, :] - kernels[None, None, :, None, :]).square().sum(-1)  # B M J K
+        s = (F.relu(1.0 - d2 / sigma) * mk[:, :, None, :]).sum(-1)  # [B, M, J]
+        return s[:, :, perm]  # [B, M, A, J]
+    a = 1.0 - rel.square().sum(-1) / sigma
+    q = kernels.square().sum(-1) / sigma
+    w = torch.einsum("bmkx,ajx->bmajk", rel, kernels * (2.0 / sigma))
+    return (F.relu(w + a[:, :, None, None, :] - q[None, None, :, :, None]) * mk[:, :, None, None, :]).sum(-1)
 
 
 def group_conv(x: torch.Tensor, index: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """x [B, N, A, C_in]; index [A, H] long; weight [H * C_in, C_out] -> [B, N, A, C_out]."""
+    """x [B, N, A, C_in]; index [A, H] long; weight [H * C_in, C_out] -> [B, N, A, C_out].
+
+    Reference (gather) form; :func:`arteq.equivariant.fast_ops.group_conv_fourier` is the same map for
+    the default neighbourhood.
+    """
     b, n, a, c = x.shape
     h = index.shape[1]
     return x[:, :, index.reshape(-1)].reshape(b, n, a, h * c) @ weight
@@ -152,7 +186,14 @@ class SeparableConvBlock(nn.Module):
 
     def _spatial_chunk(self, xyz, feats, new_xyz, idx, mask):
         rel = gather(xyz, idx) - new_xyz[:, :, None, :]  # [B, m, K, 3]
-        nb = gather(feats, idx)  # [B, m, K, A, C]
+        if feats is None:  # constant input 1: the neighbour sum of features is the sum of kernel weights
+            if self.fast:
+                s = kernel_weight_sums(rel, mask, self.kernels.to(rel.dtype), self.sigma, self.kernel_perm)
+            else:
+                s = kernel_weight_sums(rel, mask, self.rot_kernels.to(rel.dtype), self.sigma, None)
+            w = self.spatial_weight.reshape(self.n_kernel, self.c_in, self.c_out).sum(1)
+            return s.to(w.dtype) @ w
+        nb = gather(feats, idx) if use_reference() else gather_rows(feats, idx)  # [B, m, K, A, C]
         if self.fast:
             kern = self.kernels.to(rel.dtype)
             g = spatial_aggregate_closed(rel, mask, nb, kern, self.kernel_perm, self.sigma)
@@ -167,14 +208,19 @@ class SeparableConvBlock(nn.Module):
         return fn(*args)
 
     def forward(
-        self, xyz: torch.Tensor, feats: torch.Tensor, centres: torch.Tensor | None = None
+        self, xyz: torch.Tensor, feats: torch.Tensor | None, centres: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``feats=None`` stands for the constant input 1 (``[B, N, 60, C_in]`` of ones), computed without
+        materialising or gathering it."""
         b, n, _ = xyz.shape
-        if feats.shape != (b, n, GROUP_SIZE, self.c_in):
+        if feats is not None and feats.shape != (b, n, GROUP_SIZE, self.c_in):
             raise ValueError(
                 f"SeparableConvBlock: feats must be [B={b}, N={n}, 60, C_in={self.c_in}], "
                 f"got {tuple(feats.shape)}"
             )
+        dtype = self.spatial_weight.dtype
+        if feats is None and use_reference():
+            feats = xyz.new_ones(b, n, GROUP_SIZE, self.c_in, dtype=dtype)
         new_xyz = xyz if centres is None else gather(xyz, centres)
         m = new_xyz.shape[1]
         idx, mask = ball_query(new_xyz, xyz, self.radius, self.n_neighbours)
@@ -196,12 +242,21 @@ class SeparableConvBlock(nn.Module):
             1,
         )
         out = F.leaky_relu(instance_norm(out), 0.01)
-        gidx = self.gconv_index
-        step = max(1, self.chunk_elems // (b * GROUP_SIZE * gidx.shape[1] * self.c_out))
-        out = torch.cat(
-            [self._run(group_conv, out[:, s : s + step], gidx, self.group_weight) for s in range(0, m, step)],
-            1,
-        )
+        if use_reference():
+            gidx = self.gconv_index
+            step = max(1, self.chunk_elems // (b * GROUP_SIZE * gidx.shape[1] * self.c_out))
+            out = torch.cat(
+                [
+                    self._run(group_conv, out[:, s : s + step], gidx, self.group_weight)
+                    for s in range(0, m, step)
+                ],
+                1,
+            )
+        else:
+            out = self._run(group_conv_fourier, out, self.group_weight)
         out = F.leaky_relu(instance_norm(out), 0.01)
+        if feats is None:  # shortcut of the constant 1: a per-channel constant
+            res = (self.shortcut.weight.sum(1) + self.shortcut.bias).to(out.dtype)
+            return new_xyz, out + res
         res = feats if centres is None else gather(feats, centres)
         return new_xyz, out + self.shortcut(res)

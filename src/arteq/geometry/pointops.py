@@ -57,17 +57,25 @@ def farthest_point_sample(xyz: torch.Tensor, m: int, start: int | torch.Tensor =
             raise ValueError(f"farthest_point_sample: start must be in [0, N={n}), got {start}")
         cur = torch.full((b,), int(start), dtype=torch.long, device=xyz.device)
     if xyz.device.type == "cpu":
-        # numpy loop: one thread, no per-step dispatch overhead (torch's small ops slow down badly on a busy
-        # CPU; see benchmarks/README.md); same float64 arithmetic and first-index argmax as the torch loop
-        xn, cn = x.numpy(), cur.numpy()
+        # numpy loop over the samples, vectorised across the batch: no per-step dispatch overhead (torch's
+        # small ops slow down badly on a busy CPU; see benchmarks/README.md); per cloud the same float64
+        # arithmetic and first-index argmax as the torch loop, so the same order
+        # (coordinates as [3, B, N]: d = ((dx^2 + dy^2) + dz^2), the same rounding as summing over xyz)
+        xt, cn = np.ascontiguousarray(x.numpy().transpose(2, 0, 1)), cur.numpy().copy()
         out = np.empty((b, m), dtype=np.int64)
-        for bi in range(b):
-            p, c = xn[bi], int(cn[bi])
-            mind = np.full(n, np.inf)
-            for i in range(m):
-                out[bi, i] = c
-                np.minimum(mind, ((p - p[c]) ** 2).sum(-1), out=mind)
-                c = int(mind.argmax())
+        rows = np.arange(b)
+        mind = np.full((b, n), np.inf)
+        d, t = np.empty((b, n)), np.empty((b, n))
+        for i in range(m):
+            out[:, i] = cn
+            np.subtract(xt[0], xt[0, rows, cn][:, None], out=d)
+            np.multiply(d, d, out=d)
+            for ax in (1, 2):
+                np.subtract(xt[ax], xt[ax, rows, cn][:, None], out=t)
+                np.multiply(t, t, out=t)
+                np.add(d, t, out=d)
+            np.minimum(mind, d, out=mind)
+            cn = mind.argmax(-1)
         return torch.from_numpy(out)
     return _fps_torch(x, cur, m)
 

@@ -49,7 +49,9 @@ def export_weights(ckpt_path: str | Path, out_path: str | Path, info: dict[str, 
     """
     state = torch.load(str(ckpt_path), map_location="cpu", weights_only=True)
     if "state_dict" not in state or "hyper_parameters" not in state:
-        raise ValueError(f"{ckpt_path}: not an arteq Lightning checkpoint (needs state_dict, hyper_parameters)")
+        raise ValueError(
+            f"{ckpt_path}: not an arteq Lightning checkpoint (needs state_dict, hyper_parameters)"
+        )
     slim = {
         "state_dict": {k: v.detach().clone() for k, v in state["state_dict"].items()},
         "hyper_parameters": state["hyper_parameters"],
