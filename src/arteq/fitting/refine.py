@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
+import weakref
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
@@ -33,6 +35,7 @@ import numpy as np
 import roma
 import torch
 
+from arteq.body.lbs import skin
 from arteq.body.skeleton import NUM_JOINTS
 
 
@@ -57,6 +60,7 @@ class RefineConfig:
     lr_rot: float = 0.02
     lr_transl: float = 0.01
     lr_betas: float = 0.05
+    reassoc_every: int = 2  # after the gated phase, re-match every this many iterations
     backend: str = "auto"  # auto | kdtree | torch
     workers: int = 1
 
@@ -79,14 +83,70 @@ class RefineOutput:
     seconds: float = 0.0
 
 
-def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
-    """Area-weighted unit vertex normals. ``vertices [B, V, 3]``, ``faces [F, 3]`` -> ``[B, V, 3]``."""
+def vertex_normals(
+    vertices: torch.Tensor, faces: torch.Tensor, incidence: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Area-weighted unit vertex normals. ``vertices [B, V, 3]``, ``faces [F, 3]`` -> ``[B, V, 3]``;
+    ``incidence``: optional sparse ``[V, F]`` vertex-face matrix (faster on CPU)."""
     tri = vertices[:, faces]  # [B, F, 3, 3]
     fn = torch.linalg.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
-    vn = torch.zeros_like(vertices)
-    for c in range(3):
-        vn.index_add_(1, faces[:, c], fn)
+    if incidence is not None:
+        b, f, _ = fn.shape
+        vn = (incidence @ fn.permute(1, 0, 2).reshape(f, b * 3)).reshape(-1, b, 3).permute(1, 0, 2)
+    else:
+        vn = torch.zeros_like(vertices)
+        for c in range(3):
+            vn.index_add_(1, faces[:, c], fn)
     return torch.nn.functional.normalize(vn, dim=-1)
+
+
+class BodyTables:
+    """Per-body constants of the refinement, computed once (:func:`body_tables` caches them): the
+    model -> scan vertex subset, the vertex-face incidence, and the joint regressor folded into the
+    template and shape space (rest joints are linear in the betas)."""
+
+    def __init__(self, body: torch.nn.Module, m2s_vertices: int):
+        self.m2s_subset = farthest_vertices(body.v_template, m2s_vertices).to(body.v_template.device)
+        faces = body.faces
+        f = faces.shape[0]
+        rows = faces.reshape(-1)
+        cols = torch.arange(f, device=faces.device).repeat_interleave(3)
+        vals = torch.ones(3 * f, dtype=body.v_template.dtype, device=faces.device)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta"
+            coo = torch.sparse_coo_tensor(
+                torch.stack([rows, cols]), vals, (body.v_template.shape[0], f), check_invariants=True
+            )
+            self.incidence = coo.coalesce().to_sparse_csr()
+        self.j_template = body.J_regressor @ body.v_template  # [K, 3]
+        self.j_shapedirs = torch.einsum("kv,vcl->kcl", body.J_regressor, body.shapedirs)  # [K, 3, nb]
+
+
+_TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def body_tables(body: torch.nn.Module, m2s_vertices: int = 2000) -> BodyTables:
+    """Cached :class:`BodyTables` of ``body`` (recomputed if the device or subset size changed)."""
+    t = _TABLES.get(body)
+    if t is None or len(t.m2s_subset) != min(m2s_vertices, body.v_template.shape[0]) or (
+        t.j_template.device != body.v_template.device
+    ):
+        with torch.no_grad():
+            t = BodyTables(body, m2s_vertices)
+        _TABLES[body] = t
+    return t
+
+
+def skin_subset(
+    body: torch.nn.Module, tables: BodyTables, sel: torch.Tensor, betas, rotmats, transl
+) -> torch.Tensor:
+    """Posed vertices ``sel [S]`` only (differentiable): ``[B, S, 3]``, the same as
+    ``body(betas, rotmats, transl).vertices[:, sel]`` for a body without pose correctives."""
+    nb = betas.shape[1]
+    v_shaped = body.v_template[sel] + torch.einsum("bl,vcl->bvc", betas, body.shapedirs[sel, :, :nb])
+    rest_joints = tables.j_template + torch.einsum("bl,kcl->bkc", betas, tables.j_shapedirs[..., :nb])
+    verts, _, _ = skin(v_shaped, rest_joints, rotmats, body.lbs_weights[sel], transl=transl)
+    return verts
 
 
 def geman_mcclure(r2: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -109,15 +169,15 @@ def allowed_parts(probs: torch.Tensor, top: int = 2, min_prob: float = 0.2) -> t
 
 def farthest_vertices(template: torch.Tensor, count: int) -> torch.Tensor:
     """``[count]`` long: an evenly spread vertex subset (farthest point sampling, deterministic)."""
-    v = template.detach().double().cpu()
+    v = template.detach().double().cpu().numpy()
     count = min(count, v.shape[0])
-    chosen = torch.empty(count, dtype=torch.long)
-    chosen[0] = int((v - v.mean(0)).norm(dim=1).argmin())
-    dist = (v - v[chosen[0]]).norm(dim=1)
+    chosen = np.empty(count, dtype=np.int64)
+    chosen[0] = int(np.linalg.norm(v - v.mean(0), axis=1).argmin())
+    dist = ((v - v[chosen[0]]) ** 2).sum(1)
     for i in range(1, count):
         chosen[i] = int(dist.argmax())
-        dist = torch.minimum(dist, (v - v[chosen[i]]).norm(dim=1))
-    return chosen
+        np.minimum(dist, ((v - v[chosen[i]]) ** 2).sum(1), out=dist)
+    return torch.from_numpy(chosen)
 
 
 class _KDTreeMatcher:
@@ -244,11 +304,13 @@ def refine(
         matcher = _TorchMatcher(points, allowed, body.part_labels)
     else:
         raise ValueError(f"refine: backend must be auto, kdtree or torch, got {cfg.backend!r}")
+    tables = body_tables(body, cfg.m2s_vertices)
     if m2s_subset is None:
-        m2s_subset = farthest_vertices(body.v_template, cfg.m2s_vertices)
+        m2s_subset = tables.m2s_subset
     m2s_subset = m2s_subset.to(device)
     faces = body.faces
     part_labels = body.part_labels
+    partial = body.posedirs.shape[0] == 0  # skin only the vertices the objective uses
 
     delta = torch.zeros(b, NUM_JOINTS, 3, dtype=dtype, device=device, requires_grad=True)
     dt = torch.zeros(b, 3, dtype=dtype, device=device, requires_grad=True)
@@ -267,6 +329,7 @@ def refine(
     early_mask[: cfg.early_betas] = 1
     keep_m2s = max(1, int(round((1 - cfg.m2s_trim) * len(m2s_subset))))
     history: list[dict[str, float]] = []
+    idx = normals = w = None
 
     def pose_of(d: torch.Tensor) -> torch.Tensor:
         return start_rot @ roma.rotvec_to_rotmat(d)
@@ -277,25 +340,33 @@ def refine(
         w_delta = cfg.w_delta + (cfg.w_delta_end - cfg.w_delta) * frac
         for g, lr in zip(opt.param_groups, base_lr):
             g["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * frac)))
-        out = body(betas=betas, pose=pose_of(delta), transl=transl0 + dt)
-        verts = out.vertices
-        if callback is not None:
-            callback(it, verts.detach())
+        rot = pose_of(delta)
         gated = it < gate_iters
         with torch.no_grad():
-            vd = verts.detach()
-            idx = matcher.scan_to_model(vd, gated)
-            normals = _gather(vertex_normals(vd, faces), idx)
-            if gated:
-                w = torch.ones(b, n, dtype=dtype, device=device)
-            else:
-                ok = torch.gather(allowed, 2, part_labels[idx][..., None])[..., 0]
-                w = torch.where(ok, 1.0, 0.5).to(dtype)
+            vd = body(betas=betas, pose=rot, transl=transl0 + dt).vertices
+            if callback is not None:
+                callback(it, vd)
+            if idx is None or gated or (it - gate_iters) % max(1, cfg.reassoc_every) == 0:
+                idx = matcher.scan_to_model(vd, gated)
+                normals = _gather(vertex_normals(vd, faces, tables.incidence if partial else None), idx)
+                if gated:
+                    w = torch.ones(b, n, dtype=dtype, device=device)
+                else:
+                    ok = torch.gather(allowed, 2, part_labels[idx][..., None])[..., 0]
+                    w = torch.where(ok, 1.0, 0.5).to(dtype)
             sub_idx = matcher.model_to_scan(vd[:, m2s_subset])
-        diff = (points - _gather(verts, idx)) * 100.0
+        if partial:
+            sel, inv = torch.unique(torch.cat([idx.reshape(-1), m2s_subset]), return_inverse=True)
+            vs = skin_subset(body, tables, sel, betas, rot, transl0 + dt)
+            v_match = _gather(vs, inv[: b * n].view(b, n))
+            v_sub = vs[:, inv[b * n :]]
+        else:
+            verts = body(betas=betas, pose=rot, transl=transl0 + dt).vertices
+            v_match, v_sub = _gather(verts, idx), verts[:, m2s_subset]
+        diff = (points - v_match) * 100.0
         r2 = (diff * normals).sum(-1).square() + cfg.w_p2p * diff.square().sum(-1)
         s2m = (w * geman_mcclure(r2, sigma)).sum(-1) / w.sum(-1)
-        d2 = ((verts[:, m2s_subset] - _gather(points, sub_idx)) * 100.0).square().sum(-1)
+        d2 = ((v_sub - _gather(points, sub_idx)) * 100.0).square().sum(-1)
         kept = torch.topk(d2.detach(), keep_m2s, dim=1, largest=False).indices
         m2s = geman_mcclure(torch.gather(d2, 1, kept), sigma).mean(-1)
         prior = w_delta * delta.square().sum(-1).mean(-1) + cfg.w_betas * betas.square().mean(-1)
