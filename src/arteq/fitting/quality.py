@@ -25,10 +25,10 @@ import numpy as np
 class QualityThresholds:
     inlier_cm: float = 2.0
     cover_cm: float = 4.0
-    min_inlier_frac: float = 0.7
+    min_inlier_frac: float = 0.65
     max_rmse_cm: float = 1.5
     min_coverage: float = 0.75
-    min_parts: int = 18
+    min_parts: int = 14
     max_beta: float = 4.0
     extent_m_range: tuple[float, float] = (0.5, 3.0)
 
