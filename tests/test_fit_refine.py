@@ -10,7 +10,14 @@ import torch
 
 from arteq.fit.demo import synthetic_scan
 from arteq.fitting.quality import fit_quality
-from arteq.fitting.refine import RefineConfig, _KDTreeMatcher, _TorchMatcher, allowed_parts, body_tables, refine
+from arteq.fitting.refine import (
+    RefineConfig,
+    _KDTreeMatcher,
+    _TorchMatcher,
+    allowed_parts,
+    body_tables,
+    refine,
+)
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +36,9 @@ def perturbed_start(s, centre, rng, rot=0.15, betas=0.5, transl=0.03):
     return {
         "local_rotmats": pose @ pert,
         "betas": torch.as_tensor(s["betas"] + betas * rng.normal(size=10), dtype=torch.float32)[None],
-        "transl": torch.as_tensor(s["transl"] - centre + transl * off / np.linalg.norm(off), dtype=torch.float32)[None],
+        "transl": torch.as_tensor(
+            s["transl"] - centre + transl * off / np.linalg.norm(off), dtype=torch.float32
+        )[None],
     }
 
 

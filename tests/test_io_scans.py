@@ -21,7 +21,9 @@ def test_reads_every_cloud_format(tmp_path, cloud):
         "a.npy": lambda p: np.save(p, cloud),
         "b.npz": lambda p: np.savez(p, points=cloud),
         "c.xyz": lambda p: np.savetxt(p, cloud),
-        "d.txt": lambda p: p.write_text("# x y z r g b\n" + "\n".join(f"{a},{b},{c},1,2,3" for a, b, c in cloud)),
+        "d.txt": lambda p: p.write_text(
+            "# x y z r g b\n" + "\n".join(f"{a},{b},{c},1,2,3" for a, b, c in cloud)
+        ),
         "e.ply": lambda p: p.write_bytes(trimesh.PointCloud(cloud).export(file_type="ply")),
     }
     for name, write in files.items():
@@ -47,7 +49,10 @@ def test_reads_meshes_by_sampling_their_surface(tmp_path, fmt):
 
 def test_npz_key(tmp_path, cloud):
     np.savez(tmp_path / "k.npz", xyz=cloud)
-    with pytest.raises(ScanError, match=r"k\.npz: no array 'points' in the \.npz \(it holds \['xyz'\]\); name the key with --key"):
+    with pytest.raises(
+        ScanError,
+        match=r"k\.npz: no array 'points' in the \.npz \(it holds \['xyz'\]\); name the key with --key",
+    ):
         read_scan(tmp_path / "k.npz")
     np.testing.assert_allclose(read_scan(tmp_path / "k.npz", key="xyz").points, cloud)
 

@@ -4,6 +4,7 @@ truth of one body, perturbed), so the numbers measure the criterion, not the net
 
 python experiments/fitting/calibrate_check.py [--n 6]
 """
+
 import argparse
 
 import numpy as np
@@ -27,9 +28,11 @@ parts = body.part_labels.numpy()
 def start_from(s, rng, scale=1.0):
     pose = torch.as_tensor(s["pose"], dtype=torch.float32)[None]
     pert = roma.rotvec_to_rotmat(torch.as_tensor(rng.normal(0, 0.1, (1, 22, 3)), dtype=torch.float32))
-    return {"local_rotmats": pose @ pert,
-            "betas": torch.as_tensor(s["betas"] + rng.normal(0, 0.3, 10), dtype=torch.float32)[None],
-            "transl": torch.as_tensor(s["transl"] + rng.normal(0, 0.02, 3), dtype=torch.float32)[None]}
+    return {
+        "local_rotmats": pose @ pert,
+        "betas": torch.as_tensor(s["betas"] + rng.normal(0, 0.3, 10), dtype=torch.float32)[None],
+        "transl": torch.as_tensor(s["transl"] + rng.normal(0, 0.02, 3), dtype=torch.float32)[None],
+    }
 
 
 def run(points, s, rng, labels):
@@ -42,7 +45,9 @@ def run(points, s, rng, labels):
     probs = np.eye(22)[lab] * 0.7 + 0.3 / 22
     pts = torch.as_tensor(points - c, dtype=torch.float32)[None]
     out = refine(body, pts, torch.as_tensor(probs, dtype=torch.float32)[None], st, RefineConfig())
-    return fit_quality(points - c, out.vertices[0].double().numpy(), parts, subset, out.betas[0].numpy(), probs)
+    return fit_quality(
+        points - c, out.vertices[0].double().numpy(), parts, subset, out.betas[0].numpy(), probs
+    )
 
 
 rows = []
@@ -56,17 +61,24 @@ for i in range(args.n):
     s2 = synthetic_scan(body, split, i + 100, 5000, offset=0.0)
     side = np.array([0.9, 0.0, 0.0]) @ s2["rotation"].T
     both = np.concatenate([s["points"][::2], s2["points"][::2] + side])
-    rows.append(("two bodies 0.9 m apart", run(both, s, rng, np.concatenate([s["labels"][::2], -np.ones(2500, int)]))))
+    rows.append(
+        ("two bodies 0.9 m apart", run(both, s, rng, np.concatenate([s["labels"][::2], -np.ones(2500, int)])))
+    )
     sph = rng.normal(size=(5000, 3))
     sph = sph / np.linalg.norm(sph, axis=1, keepdims=True) * 0.5 + s["vertices"].mean(0)
     rows.append(("sphere r=0.5 m", run(sph, s, rng, -np.ones(5000, int))))
     box = trimesh_box = None
     import trimesh
+
     box = trimesh.creation.box(extents=(0.5, 1.7, 0.3))
     bp, _ = trimesh.sample.sample_surface(box, 5000, seed=i)
-    rows.append(("box 0.5x1.7x0.3 m", run(np.asarray(bp) + s["vertices"].mean(0), s, rng, -np.ones(5000, int))))
+    rows.append(
+        ("box 0.5x1.7x0.3 m", run(np.asarray(bp) + s["vertices"].mean(0), s, rng, -np.ones(5000, int)))
+    )
     up = s["vertices"] - s["vertices"].mean(0)
-    keep = (s["points"] - s["vertices"].mean(0)) @ (up[np.argmax(up @ np.ones(3))] / np.linalg.norm(up[np.argmax(up @ np.ones(3))])) > 0
+    keep = (s["points"] - s["vertices"].mean(0)) @ (
+        up[np.argmax(up @ np.ones(3))] / np.linalg.norm(up[np.argmax(up @ np.ones(3))])
+    ) > 0
     rows.append(("half a body", run(s["points"][keep], s, rng, s["labels"][keep])))
     for f in (0.5, 2.0):
         sc = s["points"] * f

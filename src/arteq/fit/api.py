@@ -169,7 +169,9 @@ class Fitter:
                 str(self.ckpt_path), map_location="cpu", weights_only=True
             )
         except Exception as exc:  # noqa: BLE001 - name the file whatever went wrong
-            raise ValueError(f"{self.ckpt_path}: cannot load the checkpoint ({type(exc).__name__}: {exc})") from exc
+            raise ValueError(
+                f"{self.ckpt_path}: cannot load the checkpoint ({type(exc).__name__}: {exc})"
+            ) from exc
         self.module = module.eval().to(self.device)
         self.body = self.module.body
         data = dict(self.module.hparams.get("data") or {})
@@ -256,7 +258,11 @@ class Fitter:
 
         pose_aa = roma.rotmat_to_rotvec(roma.special_procrustes(local.double())).cpu().numpy()
         verts, joints = verts.double().cpu().numpy(), joints.double().cpu().numpy()
-        grot, betas, transl = grot.double().cpu().numpy(), betas.double().cpu().numpy(), transl.double().cpu().numpy()
+        grot, betas, transl = (
+            grot.double().cpu().numpy(),
+            betas.double().cpu().numpy(),
+            transl.double().cpu().numpy(),
+        )
         per_scan_net, per_scan_ref = t_net / len(items), t_ref / len(items)
         results = []
         for i, it in enumerate(items):
@@ -309,8 +315,11 @@ class Fitter:
                     scan_points=((ref_in[i] + c) / s).astype(np.float32),
                     scan_labels=probs_ref[i].argmax(-1).astype(np.int16),
                     quality=q,
-                    timings={"network": per_scan_net, "refine": per_scan_ref,
-                             "check": time.perf_counter() - t2},  # fmt: skip
+                    timings={
+                        "network": per_scan_net,
+                        "refine": per_scan_ref,
+                        "check": time.perf_counter() - t2,
+                    },  # fmt: skip
                     body_model=str(getattr(self.body, "name", "")),
                     checkpoint=self.checkpoint_id,
                     refined=self.refine,

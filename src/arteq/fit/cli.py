@@ -14,7 +14,8 @@ import sys
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="arteq-fit",
-        description="Fit the body model to point clouds or meshes (.ply .obj .off .stl .glb .xyz .txt .npy .npz).",
+        description="Fit the body model to point clouds or meshes "
+        "(.ply .obj .off .stl .glb .xyz .txt .npy .npz).",
         epilog="Try it: python -m arteq.fit.demo --out demo && arteq-fit demo/scans --out demo/fits",
     )
     ap.add_argument("inputs", nargs="+", metavar="INPUT", help="scan files, folders (recursive) or globs")

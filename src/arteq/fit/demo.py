@@ -96,9 +96,12 @@ def write_demo(out: str | Path, count: int = 2, seed: int = 0, num_points: int =
         else:
             data = trimesh.PointCloud(s["points"]).export(file_type="ply")
         write_atomic(path, data)
-        write_atomic(out / "ground_truth" / f"{name}.obj", obj_bytes(s["vertices"], s["faces"], f"ground truth of {name}"))
-        write_atomic(out / "ground_truth" / f"{name}.npz",
-                     npz_bytes({k: s[k] for k in ("vertices", "betas", "pose", "transl", "rotation", "offset")}))  # fmt: skip
+        write_atomic(
+            out / "ground_truth" / f"{name}.obj",
+            obj_bytes(s["vertices"], s["faces"], f"ground truth of {name}"),
+        )
+        keys = ("vertices", "betas", "pose", "transl", "rotation", "offset")
+        write_atomic(out / "ground_truth" / f"{name}.npz", npz_bytes({k: s[k] for k in keys}))
         written.append(path)
     return written
 

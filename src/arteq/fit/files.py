@@ -15,7 +15,15 @@ from pathlib import Path
 from typing import Any
 
 from arteq.fit.api import FitResult, Fitter
-from arteq.io.fits import AtomicFiles, csv_bytes, json_bytes, npz_bytes, obj_bytes, remove_stale_tmp, write_atomic
+from arteq.io.fits import (
+    AtomicFiles,
+    csv_bytes,
+    json_bytes,
+    npz_bytes,
+    obj_bytes,
+    remove_stale_tmp,
+    write_atomic,
+)
 from arteq.io.scans import ScanError, expand_inputs, read_scan
 
 SUMMARY_COLUMNS = [

@@ -2,9 +2,9 @@
 
 | value | meaning | flag (reason code) when |
 |---|---|---|
-| ``inlier_frac`` | scan points within ``inlier_cm`` of the fitted mesh (nearest vertex) | < ``min_inlier_frac`` (``low_inliers``) |
+| ``inlier_frac`` | scan points within ``inlier_cm`` of the fit | < ``min_inlier_frac`` (``low_inliers``) |
 | ``rmse_in_cm`` | RMS distance of those inliers | > ``max_rmse_cm`` (``high_residual``) |
-| ``coverage`` | evenly spread mesh vertices with a scan point within ``cover_cm`` | < ``min_coverage`` (``low_coverage``) |
+| ``coverage`` | spread vertices with a point within ``cover_cm`` | < ``min_coverage`` (``low_coverage``) |
 | ``parts_covered`` | parts (of 22) holding >= 0.5 % of the inliers | < ``min_parts`` (``missing_parts``) |
 | ``label_agree`` | inliers whose fitted part is among their 2 most probable predicted parts | reported only |
 | ``max_abs_beta`` | shape plausibility (units of sigma) | > ``max_beta`` (``implausible_shape``) |

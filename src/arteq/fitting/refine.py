@@ -128,8 +128,10 @@ _TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 def body_tables(body: torch.nn.Module, m2s_vertices: int = 2000) -> BodyTables:
     """Cached :class:`BodyTables` of ``body`` (recomputed if the device or subset size changed)."""
     t = _TABLES.get(body)
-    if t is None or len(t.m2s_subset) != min(m2s_vertices, body.v_template.shape[0]) or (
-        t.j_template.device != body.v_template.device
+    if (
+        t is None
+        or len(t.m2s_subset) != min(m2s_vertices, body.v_template.shape[0])
+        or (t.j_template.device != body.v_template.device)
     ):
         with torch.no_grad():
             t = BodyTables(body, m2s_vertices)
@@ -224,7 +226,9 @@ class _KDTreeMatcher:
 class _TorchMatcher:
     """Nearest-vertex matches by brute force (``torch.cdist`` in chunks): for GPUs."""
 
-    def __init__(self, points: torch.Tensor, allowed: torch.Tensor, part_labels: torch.Tensor, chunk: int = 2048):
+    def __init__(
+        self, points: torch.Tensor, allowed: torch.Tensor, part_labels: torch.Tensor, chunk: int = 2048
+    ):
         self.points = points.detach()
         self.allowed_v = [allowed[i][:, part_labels] for i in range(points.shape[0])]  # [N, V] bool
         self.chunk = chunk
