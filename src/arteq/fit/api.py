@@ -1,0 +1,373 @@
+"""Fit the body model to scans: the Python API behind ``arteq-fit``.
+
+A scan's path: ``arteq.io.scans`` reads it -> units to metres, size check, centring (float64) ->
+resampling to the network's point count -> the ArtEq network (parts, rotations, shape; translation by
+centroids) -> optional refinement (``arteq.fitting.refine``) -> quality check
+(``arteq.fitting.quality``) -> everything mapped back to the scan's own frame and units.
+
+    from arteq.fit import fit_points, fit_files
+    res = fit_points(points)            # [N, 3] metres -> FitResult (vertices, joints, betas, ...)
+    summary = fit_files(["scans/"], "fits/")   # what the command does
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from arteq.fitting.quality import QualityThresholds, describe_flags, fit_quality
+from arteq.fitting.refine import RefineConfig, body_tables, refine
+from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_points
+
+#: Status values of a :class:`FitResult`.
+STATUSES = ("ok", "not_single_body", "error", "skipped")
+
+
+@dataclass
+class FitResult:
+    """The fit of one scan. Geometry is in the scan's frame and units unless the name says metres.
+
+    ``vertices [V, 3]``, ``faces [F, 3]``, ``joints [22, 3]``: fitted mesh and joints (scan units).
+    ``betas [nb]``; ``pose_aa [22, 3]`` local axis-angle (root first: the global orientation);
+    ``global_rotmats [22, 3, 3]`` world rotation of each part; ``transl_m [3]`` translation in metres
+    such that ``body(betas, pose_aa, transl_m).vertices / scale_to_m`` is ``vertices``.
+    ``point_labels [N]`` predicted part of each input row (-1 for dropped NaN rows),
+    ``point_confidence [N]`` its probability, ``point_fit_labels [N]`` part of the nearest fitted
+    vertex, ``point_distance [N]`` distance to it (scan units, inf for dropped rows).
+    ``quality``: :func:`arteq.fitting.quality.fit_quality` values; ``timings`` in seconds.
+    """
+
+    name: str
+    status: str = "ok"
+    message: str = ""
+    units: str = "m"
+    scale_to_m: float = 1.0
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
+    joints: np.ndarray | None = None
+    betas: np.ndarray | None = None
+    pose_aa: np.ndarray | None = None
+    global_rotmats: np.ndarray | None = None
+    transl_m: np.ndarray | None = None
+    point_labels: np.ndarray | None = None
+    point_confidence: np.ndarray | None = None
+    point_fit_labels: np.ndarray | None = None
+    point_distance: np.ndarray | None = None
+    scan_points: np.ndarray | None = None  # the points fitted (file units), for meshes and previews
+    scan_labels: np.ndarray | None = None  # predicted part of each of scan_points
+    quality: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    body_model: str = ""
+    checkpoint: str = ""
+    refined: bool = False
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def arrays(self) -> dict[str, Any]:
+        """The ``.npz`` content (see docs/fitting.md)."""
+        q = {f"quality_{k}": v for k, v in self.quality.items() if k != "flags"}
+        return {
+            "betas": self.betas,
+            "pose": self.pose_aa,
+            "global_rotmats": self.global_rotmats,
+            "transl": self.transl_m,
+            "joints": self.joints,
+            "vertices": self.vertices,
+            "point_labels": self.point_labels,
+            "point_confidence": self.point_confidence,
+            "point_fit_labels": self.point_fit_labels,
+            "point_distance": self.point_distance,
+            "body_model": np.str_(self.body_model),
+            "checkpoint": np.str_(self.checkpoint),
+            "units": np.str_(self.units),
+            "scale_to_m": np.float64(self.scale_to_m),
+            "refined": np.bool_(self.refined),
+            "status": np.str_(self.status),
+            **{k: np.asarray(v, dtype=np.float64) for k, v in q.items()},
+        }
+
+    def summary_row(self) -> dict[str, Any]:
+        q = self.quality
+        return {
+            "name": self.name,
+            "status": self.status,
+            "message": self.message,
+            "inlier_frac": q.get("inlier_frac"),
+            "rmse_in_cm": q.get("rmse_in_cm"),
+            "mean_dist_cm": q.get("mean_dist_cm"),
+            "coverage": q.get("coverage"),
+            "parts_covered": q.get("parts_covered"),
+            "max_abs_beta": q.get("max_abs_beta"),
+            "extent_m": q.get("extent_m"),
+            "flags": " ".join(q.get("flags", [])),
+            "seconds": self.timings.get("total"),
+        }
+
+
+def resolve_device(device: str) -> torch.device:
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if device not in ("cpu", "cuda") and not device.startswith("cuda:"):
+        raise ValueError(f"device must be cpu, cuda or auto, got {device!r}")
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError("device cuda asked for, but torch sees no CUDA GPU (use --device cpu or auto)")
+    return torch.device(device)
+
+
+def resample(points: np.ndarray, count: int, rng: np.random.Generator, jitter: float = 0.002) -> np.ndarray:
+    """``count`` rows of ``points``: a random subset without replacement when there are enough, else all
+    of them plus random repeats moved by ``jitter`` (metres, Gaussian) so that no two coincide."""
+    n = len(points)
+    if n >= count:
+        return points[np.sort(rng.choice(n, count, replace=False))]
+    extra = points[rng.choice(n, count - n, replace=True)] + rng.normal(0, jitter, (count - n, 3))
+    return np.concatenate([points, extra])
+
+
+class Fitter:
+    """A loaded model ready to fit clouds (keeps the network, body and tables between calls).
+
+    Args:
+        ckpt: checkpoint path or shipped model name (default: the pretrained ``anny22`` model).
+        device: ``cpu``, ``cuda`` or ``auto``.
+        refine: run :func:`arteq.fitting.refine.refine` after the network.
+        points: points of the input used by refinement and the quality check (resampled).
+        refine_config: :class:`RefineConfig`; ``thresholds``: :class:`QualityThresholds`.
+        check: turn failed quality checks into status ``not_single_body`` (else a warning only).
+        seed: resampling seed (each scan is resampled with it: results do not depend on batching).
+    """
+
+    def __init__(
+        self,
+        ckpt: str | Path | None = None,
+        device: str = "auto",
+        refine: bool = True,
+        points: int = 5000,
+        refine_config: RefineConfig | None = None,
+        thresholds: QualityThresholds | None = None,
+        check: bool = True,
+        seed: int = 0,
+    ) -> None:
+        from arteq.pretrained import resolve_checkpoint
+        from arteq.training.module import ArtEqModule
+
+        if points < MIN_POINTS:
+            raise ValueError(f"points must be >= {MIN_POINTS}, got {points}")
+        self.device = resolve_device(device)
+        self.ckpt_path = resolve_checkpoint(ckpt)
+        try:
+            module = ArtEqModule.load_from_checkpoint(
+                str(self.ckpt_path), map_location="cpu", weights_only=True
+            )
+        except Exception as exc:  # noqa: BLE001 - name the file whatever went wrong
+            raise ValueError(
+                f"{self.ckpt_path}: cannot load the checkpoint ({type(exc).__name__}: {exc})"
+            ) from exc
+        self.module = module.eval().to(self.device)
+        self.body = self.module.body
+        data = dict(self.module.hparams.get("data") or {})
+        self.net_points = int(data.get("num_points") or 5000)
+        digest = hashlib.sha256(self.ckpt_path.read_bytes()).hexdigest()[:12]
+        self.checkpoint_id = f"{self.ckpt_path.name}@sha256:{digest}"
+        self.refine = refine
+        self.points = int(points)
+        self.refine_config = refine_config or RefineConfig()
+        self.thresholds = thresholds or QualityThresholds()
+        self.check = check
+        self.seed = seed
+        self.faces = self.body.faces.cpu().numpy()
+        self.vertex_parts = self.body.part_labels.cpu().numpy()
+        self.subset = body_tables(self.body, self.refine_config.m2s_vertices).m2s_subset.cpu().numpy()
+
+    # ------------------------------------------------------------------ core (metres)
+    def prepare(self, points: np.ndarray, units: str = "m", name: str = "points") -> dict[str, Any]:
+        """Validate one cloud and convert it to metres; raises :class:`ScanError` naming ``name``."""
+        if units not in UNITS:
+            raise ValueError(f"units must be one of {sorted(UNITS)}, got {units!r}")
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ScanError(f"{name}: points must be [N, 3], got shape {list(pts.shape)}")
+        if len(pts) == 0:
+            raise ScanError(f"{name}: no points")
+        finite, keep = clean_points(pts, name)
+        warnings = []
+        if not keep.all():
+            warnings.append(f"dropped {int((~keep).sum())} points with NaN/inf coordinates")
+        if len(finite) < MIN_POINTS:
+            raise ScanError(f"{name}: only {len(finite)} usable points, at least {MIN_POINTS} are needed")
+        scale = UNITS[units]
+        metres = finite * scale
+        check_body_size(metres, name, units)
+        center = metres.mean(0)
+        return {"name": name, "centred": metres - center, "center": center, "keep": keep,
+                "scale": scale, "units": units, "warnings": warnings}  # fmt: skip
+
+    @torch.no_grad()
+    def _network(self, clouds: list[np.ndarray]) -> dict[str, torch.Tensor]:
+        x = torch.as_tensor(np.stack(clouds), dtype=torch.float32, device=self.device)
+        return self.module(x)
+
+    def fit_prepared(self, items: list[dict[str, Any]]) -> list[FitResult]:
+        """Fit a batch of :meth:`prepare` outputs."""
+        from scipy.spatial import cKDTree
+
+        if not items:
+            return []
+        t0 = time.perf_counter()
+        net_in, ref_in = [], []
+        for it in items:
+            rng = np.random.default_rng(self.seed)
+            net_in.append(resample(it["centred"], self.net_points, rng))
+            ref_in.append(resample(it["centred"], self.points, rng))
+        pred = self._network(net_in)
+        if self.device.type == "cuda":
+            torch.cuda.synchronize()
+        t_net = time.perf_counter() - t0
+        probs_net = pred["part_probs"].float().cpu().numpy()
+        trees = [cKDTree(p) for p in net_in]
+        probs_ref = np.stack([probs_net[i][trees[i].query(ref_in[i])[1]] for i in range(len(items))])
+        init = {"local_rotmats": pred["local_rotmats"], "betas": pred["betas"], "transl": pred["transl"]}
+        t1 = time.perf_counter()
+        dtype = self.body.v_template.dtype
+        if self.refine:
+            out = refine(
+                self.body,
+                torch.as_tensor(np.stack(ref_in), dtype=dtype, device=self.device),
+                torch.as_tensor(probs_ref, dtype=dtype, device=self.device),
+                init,
+                self.refine_config,
+            )
+            local, betas, transl = out.local_rotmats, out.betas, out.transl
+            verts, joints, grot = out.vertices, out.joints, out.global_rotmats
+        else:
+            local, betas, transl = init["local_rotmats"], init["betas"], init["transl"]
+            with torch.no_grad():
+                o = self.body(betas=betas.to(dtype), pose=local.to(dtype), transl=transl.to(dtype))
+            verts, joints, grot = o.vertices, o.joints, o.global_rotmats
+        t_ref = time.perf_counter() - t1
+        import roma
+
+        pose_aa = roma.rotmat_to_rotvec(roma.special_procrustes(local.double())).cpu().numpy()
+        verts, joints = verts.double().cpu().numpy(), joints.double().cpu().numpy()
+        grot, betas, transl = (
+            grot.double().cpu().numpy(),
+            betas.double().cpu().numpy(),
+            transl.double().cpu().numpy(),
+        )
+        per_scan_net, per_scan_ref = t_net / len(items), t_ref / len(items)
+        results = []
+        for i, it in enumerate(items):
+            t2 = time.perf_counter()
+            q = fit_quality(ref_in[i], verts[i], self.vertex_parts, self.subset, betas[i], probs_ref[i],
+                            self.thresholds)  # fmt: skip
+            s = it["scale"]
+            keep = it["keep"]
+            n_all = len(keep)
+            lab = np.full(n_all, -1, dtype=np.int16)
+            conf = np.zeros(n_all, dtype=np.float32)
+            fit_lab = np.full(n_all, -1, dtype=np.int16)
+            dist = np.full(n_all, np.inf, dtype=np.float32)
+            _, nn = trees[i].query(it["centred"])
+            lab[keep] = probs_net[i][nn].argmax(-1)
+            conf[keep] = probs_net[i][nn].max(-1)
+            d, vi = cKDTree(verts[i]).query(it["centred"])
+            fit_lab[keep] = self.vertex_parts[vi]
+            dist[keep] = d / s
+            status, message = "ok", ""
+            warnings = list(it["warnings"])
+            if q["flags"]:
+                text = describe_flags(q)
+                if self.check:
+                    status = "not_single_body"
+                    message = f"{it['name']}: not a single body ({text})"
+                else:
+                    warnings.append(f"quality check failed: {text}")
+            if warnings and not message:
+                message = f"{it['name']}: " + "; ".join(warnings)
+            c = it["center"]
+            results.append(
+                FitResult(
+                    name=it["name"],
+                    status=status,
+                    message=message,
+                    units=it["units"],
+                    scale_to_m=s,
+                    vertices=((verts[i] + c) / s).astype(np.float32),
+                    faces=self.faces,
+                    joints=((joints[i] + c) / s).astype(np.float32),
+                    betas=betas[i].astype(np.float32),
+                    pose_aa=pose_aa[i].astype(np.float32),
+                    global_rotmats=grot[i].astype(np.float32),
+                    transl_m=(transl[i] + c).astype(np.float64),
+                    point_labels=lab,
+                    point_confidence=conf,
+                    point_fit_labels=fit_lab,
+                    point_distance=dist,
+                    scan_points=((ref_in[i] + c) / s).astype(np.float32),
+                    scan_labels=probs_ref[i].argmax(-1).astype(np.int16),
+                    quality=q,
+                    timings={
+                        "network": per_scan_net,
+                        "refine": per_scan_ref,
+                        "check": time.perf_counter() - t2,
+                    },  # fmt: skip
+                    body_model=str(getattr(self.body, "name", "")),
+                    checkpoint=self.checkpoint_id,
+                    refined=self.refine,
+                    warnings=warnings,
+                )
+            )
+        for r in results:
+            r.timings["total"] = r.timings["network"] + r.timings["refine"] + r.timings["check"]
+        return results
+
+    def fit_points(self, points: np.ndarray, units: str = "m", name: str = "points") -> FitResult:
+        """Fit one cloud ``[N, 3]`` (in ``units``); bad input gives a result with status ``error``."""
+        try:
+            item = self.prepare(points, units, name)
+        except ScanError as exc:
+            return FitResult(name=name, status="error", message=str(exc), units=units)
+        return self.fit_prepared([item])[0]
+
+
+_FITTERS: dict[tuple, Fitter] = {}
+
+
+def get_fitter(**kwargs: Any) -> Fitter:
+    """A :class:`Fitter`, cached by its arguments (loading a checkpoint costs about a second)."""
+    key = tuple(sorted((k, repr(v)) for k, v in kwargs.items()))
+    if key not in _FITTERS:
+        _FITTERS[key] = Fitter(**kwargs)
+    return _FITTERS[key]
+
+
+def fit_points(
+    points: np.ndarray | torch.Tensor,
+    units: str = "m",
+    ckpt: str | Path | None = None,
+    refine: bool = True,
+    device: str = "auto",
+    num_points: int = 5000,
+    check: bool = True,
+    name: str = "points",
+    fitter: Fitter | None = None,
+) -> FitResult:
+    """Fit the body to one point cloud ``[N, 3]`` given in ``units`` (``m``, ``cm`` or ``mm``).
+
+    Returns a :class:`FitResult` in the cloud's own frame and units; ``result.status`` is ``ok``,
+    ``not_single_body`` (the quality check failed; ``result.message`` says why) or ``error`` (bad
+    input: too few points, wrong units...). Pass ``fitter=`` to reuse a loaded model.
+    """
+    if isinstance(points, torch.Tensor):
+        points = points.detach().cpu().numpy()
+    f = fitter or get_fitter(ckpt=ckpt, device=device, refine=refine, points=num_points, check=check)
+    return f.fit_points(points, units=units, name=name)

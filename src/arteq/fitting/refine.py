@@ -1,0 +1,408 @@
+"""Test-time refinement of a predicted body against its scan: robust, part-gated ICP (batched).
+
+Start: a prediction (local rotations, betas, translation) and per-point part probabilities, e.g. the
+ArtEq network's. Parameters per scan: a residual rotation ``delta_k`` per joint (``theta_k =
+theta_k^start exp([delta_k])``, starting at 0), a translation offset and the betas. Objective per scan
+(centimetres squared; scans are summed, points averaged within a scan, so scans stay independent):
+
+* scan -> model: each point against the posed vertex it is matched to, point-to-plane plus ``w_p2p``
+  times point-to-point, through a Geman-McClure kernel ``rho(r^2) = s^2 r^2 / (s^2 + r^2)`` whose scale
+  ``s`` shrinks geometrically from ``sigma_start`` to ``sigma_end`` (outliers lose their pull);
+  during the first ``gate_frac`` of the iterations a point may only match vertices of its predicted
+  parts (top ``top_parts`` parts with probability >= ``min_prob``; the most probable always), which
+  keeps limbs out of the wrong local minima free nearest neighbours fall into; afterwards matches are
+  free, at half weight when the matched part is not one of the point's predicted ones;
+* model -> scan: a fixed farthest-point subset of vertices against the scan, point-to-point, the
+  worst ``m2s_trim`` fraction dropped (holes), same kernel;
+* priors: ``w_delta`` mean squared residual rotation (rad^2, anchors to the start; decays linearly to
+  ``w_delta_end``), ``w_betas`` mean squared betas (units of sigma); betas beyond the first
+  ``early_betas`` are frozen for the first third.
+
+Adam with per-group learning rates and cosine decay. Correspondences: ``scipy.spatial.cKDTree`` on CPU
+(one tree per part when gated), brute-force ``torch.cdist`` in chunks on GPU.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+import weakref
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import roma
+import torch
+
+from arteq.body.lbs import skin
+from arteq.body.skeleton import NUM_JOINTS
+
+
+@dataclass
+class RefineConfig:
+    """Knobs of :func:`refine` (defaults measured in ``experiments/fitting/README.md``)."""
+
+    iters: int = 40
+    sigma_start: float = 8.0  # cm
+    sigma_end: float = 1.0  # cm
+    w_p2p: float = 0.1
+    w_m2s: float = 1.0
+    m2s_vertices: int = 2000
+    m2s_trim: float = 0.15
+    gate_frac: float = 0.4
+    top_parts: int = 2
+    min_prob: float = 0.2
+    w_delta: float = 20.0
+    w_delta_end: float = 2.0
+    w_betas: float = 0.5
+    early_betas: int = 2
+    lr_rot: float = 0.02
+    lr_transl: float = 0.01
+    lr_betas: float = 0.05
+    reassoc_every: int = 2  # after the gated phase, re-match every this many iterations
+    backend: str = "auto"  # auto | kdtree | torch
+    workers: int = 1
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class RefineOutput:
+    """Result of :func:`refine` (tensors batched, detached, on the input device)."""
+
+    local_rotmats: torch.Tensor  # [B, 22, 3, 3]
+    betas: torch.Tensor  # [B, nb]
+    transl: torch.Tensor  # [B, 3]
+    vertices: torch.Tensor  # [B, V, 3]
+    joints: torch.Tensor  # [B, 22, 3]
+    global_rotmats: torch.Tensor  # [B, 22, 3, 3]
+    history: list[dict[str, float]] = field(default_factory=list)
+    iterations: int = 0
+    seconds: float = 0.0
+
+
+def vertex_normals(
+    vertices: torch.Tensor, faces: torch.Tensor, incidence: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Area-weighted unit vertex normals. ``vertices [B, V, 3]``, ``faces [F, 3]`` -> ``[B, V, 3]``;
+    ``incidence``: optional sparse ``[V, F]`` vertex-face matrix (faster on CPU)."""
+    tri = vertices[:, faces]  # [B, F, 3, 3]
+    fn = torch.linalg.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+    if incidence is not None:
+        b, f, _ = fn.shape
+        vn = (incidence @ fn.permute(1, 0, 2).reshape(f, b * 3)).reshape(-1, b, 3).permute(1, 0, 2)
+    else:
+        vn = torch.zeros_like(vertices)
+        for c in range(3):
+            vn.index_add_(1, faces[:, c], fn)
+    return torch.nn.functional.normalize(vn, dim=-1)
+
+
+class BodyTables:
+    """Per-body constants of the refinement, computed once (:func:`body_tables` caches them): the
+    model -> scan vertex subset, the vertex-face incidence, and the joint regressor folded into the
+    template and shape space (rest joints are linear in the betas)."""
+
+    def __init__(self, body: torch.nn.Module, m2s_vertices: int):
+        self.m2s_subset = farthest_vertices(body.v_template, m2s_vertices).to(body.v_template.device)
+        faces = body.faces
+        f = faces.shape[0]
+        rows = faces.reshape(-1)
+        cols = torch.arange(f, device=faces.device).repeat_interleave(3)
+        vals = torch.ones(3 * f, dtype=body.v_template.dtype, device=faces.device)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta"
+            coo = torch.sparse_coo_tensor(
+                torch.stack([rows, cols]), vals, (body.v_template.shape[0], f), check_invariants=True
+            )
+            self.incidence = coo.coalesce().to_sparse_csr()
+        self.j_template = body.J_regressor @ body.v_template  # [K, 3]
+        self.j_shapedirs = torch.einsum("kv,vcl->kcl", body.J_regressor, body.shapedirs)  # [K, 3, nb]
+
+
+_TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def body_tables(body: torch.nn.Module, m2s_vertices: int = 2000) -> BodyTables:
+    """Cached :class:`BodyTables` of ``body`` (recomputed if the device or subset size changed)."""
+    t = _TABLES.get(body)
+    if (
+        t is None
+        or len(t.m2s_subset) != min(m2s_vertices, body.v_template.shape[0])
+        or (t.j_template.device != body.v_template.device)
+    ):
+        with torch.no_grad():
+            t = BodyTables(body, m2s_vertices)
+        _TABLES[body] = t
+    return t
+
+
+def skin_subset(
+    body: torch.nn.Module, tables: BodyTables, sel: torch.Tensor, betas, rotmats, transl
+) -> torch.Tensor:
+    """Posed vertices ``sel [S]`` only (differentiable): ``[B, S, 3]``, the same as
+    ``body(betas, rotmats, transl).vertices[:, sel]`` for a body without pose correctives."""
+    nb = betas.shape[1]
+    v_shaped = body.v_template[sel] + torch.einsum("bl,vcl->bvc", betas, body.shapedirs[sel, :, :nb])
+    rest_joints = tables.j_template + torch.einsum("bl,kcl->bkc", betas, tables.j_shapedirs[..., :nb])
+    verts, _, _ = skin(v_shaped, rest_joints, rotmats, body.lbs_weights[sel], transl=transl)
+    return verts
+
+
+def geman_mcclure(r2: torch.Tensor, sigma: float) -> torch.Tensor:
+    """``s^2 r^2 / (s^2 + r^2)`` of squared residuals ``r2`` (like ``r2`` near 0, at most ``s^2``)."""
+    s2 = sigma * sigma
+    return s2 * r2 / (s2 + r2)
+
+
+def allowed_parts(probs: torch.Tensor, top: int = 2, min_prob: float = 0.2) -> torch.Tensor:
+    """``[B, N, K]`` bool: the ``top`` most probable parts of each point with probability >= ``min_prob``
+    (the most probable always)."""
+    k = min(top, probs.shape[-1])
+    val, idx = probs.topk(k, dim=-1)
+    keep = val >= min_prob
+    keep[..., 0] = True
+    out = torch.zeros_like(probs, dtype=torch.bool)
+    out.scatter_(-1, idx, keep)
+    return out
+
+
+def farthest_vertices(template: torch.Tensor, count: int) -> torch.Tensor:
+    """``[count]`` long: an evenly spread vertex subset (farthest point sampling, deterministic)."""
+    v = template.detach().double().cpu().numpy()
+    count = min(count, v.shape[0])
+    chosen = np.empty(count, dtype=np.int64)
+    chosen[0] = int(np.linalg.norm(v - v.mean(0), axis=1).argmin())
+    dist = ((v - v[chosen[0]]) ** 2).sum(1)
+    for i in range(1, count):
+        chosen[i] = int(dist.argmax())
+        np.minimum(dist, ((v - v[chosen[i]]) ** 2).sum(1), out=dist)
+    return torch.from_numpy(chosen)
+
+
+class _KDTreeMatcher:
+    """Nearest-vertex matches with scipy's cKDTree (CPU)."""
+
+    def __init__(self, points: torch.Tensor, allowed: torch.Tensor, part_labels: torch.Tensor, workers: int):
+        from scipy.spatial import cKDTree
+
+        self.cKDTree = cKDTree
+        self.workers = workers
+        self.points = points.detach().cpu().double().numpy()
+        self.scan_trees = [cKDTree(p) for p in self.points]
+        labels = part_labels.cpu().numpy()
+        k = allowed.shape[-1]
+        self.part_vidx = [np.nonzero(labels == j)[0] for j in range(k)]
+        al = allowed.cpu().numpy()
+        self.allowed_idx = [[np.nonzero(al[b, :, j])[0] for j in range(k)] for b in range(al.shape[0])]
+
+    def scan_to_model(self, verts: torch.Tensor, gated: bool) -> torch.Tensor:
+        v = verts.detach().cpu().double().numpy()
+        b, n = self.points.shape[:2]
+        out = np.zeros((b, n), dtype=np.int64)
+        for i in range(b):
+            if not gated:
+                out[i] = self.cKDTree(v[i]).query(self.points[i], workers=self.workers)[1]
+                continue
+            best = np.full(n, np.inf)
+            for j, vidx in enumerate(self.part_vidx):
+                pidx = self.allowed_idx[i][j]
+                if len(pidx) == 0 or len(vidx) == 0:
+                    continue
+                d, nn = self.cKDTree(v[i, vidx]).query(self.points[i, pidx], workers=self.workers)
+                upd = d < best[pidx]
+                best[pidx[upd]] = d[upd]
+                out[i, pidx[upd]] = vidx[nn[upd]]
+        return torch.from_numpy(out).to(verts.device)
+
+    def model_to_scan(self, verts: torch.Tensor) -> torch.Tensor:
+        v = verts.detach().cpu().double().numpy()
+        idx = np.stack([t.query(v[i], workers=self.workers)[1] for i, t in enumerate(self.scan_trees)])
+        return torch.from_numpy(idx).to(verts.device)
+
+
+class _TorchMatcher:
+    """Nearest-vertex matches by brute force (``torch.cdist`` in chunks): for GPUs."""
+
+    def __init__(
+        self, points: torch.Tensor, allowed: torch.Tensor, part_labels: torch.Tensor, chunk: int = 2048
+    ):
+        self.points = points.detach()
+        self.allowed_v = [allowed[i][:, part_labels] for i in range(points.shape[0])]  # [N, V] bool
+        self.chunk = chunk
+
+    def _nearest(self, a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        out = []
+        for s in range(0, a.shape[0], self.chunk):
+            d = torch.cdist(a[s : s + self.chunk], b)
+            if mask is not None:
+                d = d.masked_fill(~mask[s : s + self.chunk], float("inf"))
+            out.append(d.argmin(dim=1))
+        return torch.cat(out)
+
+    def scan_to_model(self, verts: torch.Tensor, gated: bool) -> torch.Tensor:
+        v = verts.detach().to(self.points.dtype)
+        return torch.stack(
+            [
+                self._nearest(self.points[i], v[i], self.allowed_v[i] if gated else None)
+                for i in range(v.shape[0])
+            ]
+        )
+
+    def model_to_scan(self, verts: torch.Tensor) -> torch.Tensor:
+        v = verts.detach().to(self.points.dtype)
+        return torch.stack([self._nearest(v[i], self.points[i], None) for i in range(v.shape[0])])
+
+
+def _gather(x: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    """``x [B, M, C]``, ``idx [B, N]`` -> ``[B, N, C]``."""
+    return torch.gather(x, 1, idx[..., None].expand(-1, -1, x.shape[-1]))
+
+
+def refine(
+    body: torch.nn.Module,
+    points: torch.Tensor,
+    part_probs: torch.Tensor,
+    init: dict[str, torch.Tensor],
+    config: RefineConfig | None = None,
+    callback: Callable[[int, torch.Tensor], None] | None = None,
+    m2s_subset: torch.Tensor | None = None,
+) -> RefineOutput:
+    """Refine ``init`` against ``points`` (see module docstring).
+
+    Args:
+        body: :class:`arteq.body.BodyModel` (buffers ``faces``, ``part_labels``, ``v_template``).
+        points: ``[B, N, 3]`` metres (centred clouds are best for float32 precision).
+        part_probs: ``[B, N, K]`` part probabilities (or one-hot labels) of the points.
+        init: ``local_rotmats [B,22,3,3]``, ``betas [B,nb]``, ``transl [B,3]``.
+        config: :class:`RefineConfig`.
+        callback: called as ``callback(iteration, vertices [B,V,3])`` before each step (for studies).
+        m2s_subset: ``[S]`` vertex indices for the model -> scan term (default: farthest points).
+    Returns:
+        :class:`RefineOutput`.
+    """
+    cfg = config or RefineConfig()
+    t0 = time.perf_counter()
+    if points.ndim != 3 or points.shape[-1] != 3:
+        raise ValueError(f"refine: points must be [B, N, 3], got {tuple(points.shape)}")
+    b, n, _ = points.shape
+    dtype, device = body.v_template.dtype, body.v_template.device
+    points = points.to(device=device, dtype=dtype)
+    probs = part_probs.to(device=device, dtype=dtype)
+    if probs.shape[:2] != (b, n):
+        raise ValueError(f"refine: part_probs must be [{b}, {n}, K], got {tuple(probs.shape)}")
+    start_rot = init["local_rotmats"].detach().to(device=device, dtype=dtype)
+    betas = init["betas"].detach().to(device=device, dtype=dtype).clone()
+    transl0 = init["transl"].detach().to(device=device, dtype=dtype)
+    nb = betas.shape[1]
+
+    allowed = allowed_parts(probs, cfg.top_parts, cfg.min_prob)
+    backend = cfg.backend
+    if backend == "auto":
+        backend = "torch" if device.type == "cuda" else "kdtree"
+    if backend == "kdtree":
+        matcher = _KDTreeMatcher(points, allowed, body.part_labels, cfg.workers)
+    elif backend == "torch":
+        matcher = _TorchMatcher(points, allowed, body.part_labels)
+    else:
+        raise ValueError(f"refine: backend must be auto, kdtree or torch, got {cfg.backend!r}")
+    tables = body_tables(body, cfg.m2s_vertices)
+    if m2s_subset is None:
+        m2s_subset = tables.m2s_subset
+    m2s_subset = m2s_subset.to(device)
+    faces = body.faces
+    part_labels = body.part_labels
+    partial = body.posedirs.shape[0] == 0  # skin only the vertices the objective uses
+
+    delta = torch.zeros(b, NUM_JOINTS, 3, dtype=dtype, device=device, requires_grad=True)
+    dt = torch.zeros(b, 3, dtype=dtype, device=device, requires_grad=True)
+    betas.requires_grad_(True)
+    opt = torch.optim.Adam(
+        [
+            {"params": [delta], "lr": cfg.lr_rot},
+            {"params": [dt], "lr": cfg.lr_transl},
+            {"params": [betas], "lr": cfg.lr_betas},
+        ]
+    )
+    base_lr = [g["lr"] for g in opt.param_groups]
+    iters = max(0, int(cfg.iters))
+    gate_iters = int(round(cfg.gate_frac * iters))
+    early_mask = torch.zeros(nb, dtype=dtype, device=device)
+    early_mask[: cfg.early_betas] = 1
+    keep_m2s = max(1, int(round((1 - cfg.m2s_trim) * len(m2s_subset))))
+    history: list[dict[str, float]] = []
+    idx = normals = w = None
+
+    def pose_of(d: torch.Tensor) -> torch.Tensor:
+        return start_rot @ roma.rotvec_to_rotmat(d)
+
+    for it in range(iters):
+        frac = it / max(1, iters - 1)
+        sigma = cfg.sigma_start * (cfg.sigma_end / cfg.sigma_start) ** frac
+        w_delta = cfg.w_delta + (cfg.w_delta_end - cfg.w_delta) * frac
+        for g, lr in zip(opt.param_groups, base_lr):
+            g["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * frac)))
+        rot = pose_of(delta)
+        gated = it < gate_iters
+        with torch.no_grad():
+            vd = body(betas=betas, pose=rot, transl=transl0 + dt).vertices
+            if callback is not None:
+                callback(it, vd)
+            if idx is None or gated or (it - gate_iters) % max(1, cfg.reassoc_every) == 0:
+                idx = matcher.scan_to_model(vd, gated)
+                normals = _gather(vertex_normals(vd, faces, tables.incidence if partial else None), idx)
+                if gated:
+                    w = torch.ones(b, n, dtype=dtype, device=device)
+                else:
+                    ok = torch.gather(allowed, 2, part_labels[idx][..., None])[..., 0]
+                    w = torch.where(ok, 1.0, 0.5).to(dtype)
+            sub_idx = matcher.model_to_scan(vd[:, m2s_subset])
+        if partial:
+            sel, inv = torch.unique(torch.cat([idx.reshape(-1), m2s_subset]), return_inverse=True)
+            vs = skin_subset(body, tables, sel, betas, rot, transl0 + dt)
+            v_match = _gather(vs, inv[: b * n].view(b, n))
+            v_sub = vs[:, inv[b * n :]]
+        else:
+            verts = body(betas=betas, pose=rot, transl=transl0 + dt).vertices
+            v_match, v_sub = _gather(verts, idx), verts[:, m2s_subset]
+        diff = (points - v_match) * 100.0
+        r2 = (diff * normals).sum(-1).square() + cfg.w_p2p * diff.square().sum(-1)
+        s2m = (w * geman_mcclure(r2, sigma)).sum(-1) / w.sum(-1)
+        d2 = ((v_sub - _gather(points, sub_idx)) * 100.0).square().sum(-1)
+        kept = torch.topk(d2.detach(), keep_m2s, dim=1, largest=False).indices
+        m2s = geman_mcclure(torch.gather(d2, 1, kept), sigma).mean(-1)
+        prior = w_delta * delta.square().sum(-1).mean(-1) + cfg.w_betas * betas.square().mean(-1)
+        loss_b = s2m + cfg.w_m2s * m2s + prior
+        opt.zero_grad(set_to_none=True)
+        loss_b.sum().backward()
+        if it < iters // 3 and betas.grad is not None:
+            betas.grad.mul_(early_mask)
+        opt.step()
+        history.append(
+            {
+                "iter": it,
+                "loss": float(loss_b.detach().mean()),
+                "s2m": float(s2m.detach().mean()),
+                "m2s": float(m2s.detach().mean()),
+                "sigma": sigma,
+            }
+        )
+        if not math.isfinite(history[-1]["loss"]):
+            raise FloatingPointError(f"refine: objective became {history[-1]['loss']} at iteration {it}")
+
+    with torch.no_grad():
+        rot = pose_of(delta)
+        out = body(betas=betas, pose=rot, transl=transl0 + dt)
+    return RefineOutput(
+        local_rotmats=rot.detach(),
+        betas=betas.detach(),
+        transl=(transl0 + dt).detach(),
+        vertices=out.vertices.detach(),
+        joints=out.joints.detach(),
+        global_rotmats=out.global_rotmats.detach(),
+        history=history,
+        iterations=iters,
+        seconds=time.perf_counter() - t0,
+    )
