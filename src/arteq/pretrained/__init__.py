@@ -41,13 +41,18 @@ def resolve_checkpoint(name_or_path: str | Path | None = None) -> Path:
     )
 
 
-def export_weights(ckpt_path: str | Path, out_path: str | Path, info: dict[str, Any] | None = None) -> Path:
+def export_weights(
+    ckpt_path: str | Path | dict[str, Any], out_path: str | Path, info: dict[str, Any] | None = None
+) -> Path:
     """Write a weights-only copy of a training checkpoint (no optimizer, loops or callbacks).
 
-    Keeps ``state_dict`` (network weights; body buffers are never saved) and ``hyper_parameters``; adds
+    ``ckpt_path``: a checkpoint file or its loaded dict. Keeps ``state_dict`` (network weights; body buffers are never saved) and ``hyper_parameters``; adds
     ``info`` under ``arteq``. Written atomically (temporary file, then rename).
     """
-    state = torch.load(str(ckpt_path), map_location="cpu", weights_only=True)
+    if isinstance(ckpt_path, dict):
+        state = ckpt_path
+    else:
+        state = torch.load(str(ckpt_path), map_location="cpu", weights_only=True)
     if "state_dict" not in state or "hyper_parameters" not in state:
         raise ValueError(
             f"{ckpt_path}: not an arteq Lightning checkpoint (needs state_dict, hyper_parameters)"

@@ -1,0 +1,216 @@
+"""Export a trained run as a shipped pretrained model, with its model card and a reproducibility check.
+
+``python -m arteq.pretrained.card export RUN_DIR --name anny22 [--stage1-run DIR] [--notes TEXT]``
+writes ``src/arteq/pretrained/<name>.ckpt`` (weights only) and ``<name>.md`` (the card: architecture and
+config, data, steps and wall-clock, commands, test metrics). ``python -m arteq.pretrained.card check NAME``
+recomputes the card's *subset metrics* (the first ``n`` clouds of each test split, generated
+deterministically from the recorded data config) and compares them with the stored ones.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from arteq.pretrained import PRETRAINED_DIR, export_weights, resolve_checkpoint
+
+SUBSET_SPLITS = ("test_id", "test_ood")
+METRICS = ("part_acc", "v2v_cm", "mpjpe_cm", "rot_err_deg")
+
+
+def load_module(name_or_path: str | Path | None = None, map_location: str = "cpu"):
+    """The shipped (or given) model as an ``ArtEqModule`` in eval mode, loaded with ``weights_only=True``."""
+    from arteq.training.module import ArtEqModule
+
+    path = resolve_checkpoint(name_or_path)
+    module = ArtEqModule.load_from_checkpoint(str(path), map_location=map_location, weights_only=True)
+    return module.eval()
+
+
+def test_data_config(module, **overrides: Any) -> dict[str, Any]:
+    """The data config the model was trained on (from its hyper-parameters), for its test sets."""
+    cfg = {k: v for k, v in dict(module.hparams.get("data") or {}).items() if k != "_target_"}
+    cfg.update(overrides)
+    return cfg
+
+
+@torch.no_grad()
+def subset_metrics(module, n: int = 16, data: Mapping[str, Any] | None = None) -> dict[str, dict[str, float]]:
+    """Metrics on the first ``n`` clouds of test_id and test_ood (deterministic, no disk cache)."""
+    from arteq.data import BodyScanDataModule
+    from arteq.training.metrics import BodyFitMetrics
+
+    cfg = dict(data if data is not None else test_data_config(module))
+    cfg.update(cache=False, num_workers=0)
+    dm = BodyScanDataModule(**{**cfg, "body_model": dict(module.hparams.body_model)})
+    out: dict[str, dict[str, float]] = {}
+    for split in SUBSET_SPLITS:
+        ds = dm.make_dataset(split)
+        metric = BodyFitMetrics()
+        for s in range(0, n, 8):
+            items = [ds[i] for i in range(s, min(n, s + 8))]
+            batch = {k: torch.stack([it[k] for it in items]) for k in items[0]}
+            pred, gt, _ = module._step(batch, use_gt_parts=False)
+            module._update(metric, pred, gt)
+        values = metric.compute()
+        out[split] = {k: float(values[k]) for k in METRICS}
+    return out
+
+
+def _run_summary(run: Path) -> dict[str, Any]:
+    """Steps, epochs and wall-clock of a run folder from its CSV logs and metrics.json."""
+    info: dict[str, Any] = {"run": str(run)}
+    steps, rows = 0, 0
+    for f in sorted(run.rglob("metrics.csv")):
+        with open(f) as fh:
+            for r in csv.DictReader(fh):
+                rows += 1
+                if r.get("step"):
+                    steps = max(steps, int(float(r["step"])))
+    info["last_logged_step"] = steps
+    mj = run / "metrics.json"
+    if mj.is_file():
+        m = json.loads(mj.read_text())
+        info["metrics"] = m.get("metrics")
+        for k in ("train_seconds", "wall_seconds", "elapsed_s"):
+            if k in m:
+                info[k] = m[k]
+    return info
+
+
+def _best_checkpoint(run: Path) -> Path:
+    ckpts = sorted(p for p in (run / "checkpoints").glob("*.ckpt") if p.name != "last.ckpt")
+    if ckpts:
+        return ckpts[-1]
+    last = run / "checkpoints" / "last.ckpt"
+    if last.is_file():
+        return last
+    raise FileNotFoundError(f"{run}/checkpoints: no checkpoint")
+
+
+def _fmt_table(metrics: Mapping[str, Mapping[str, float]]) -> str:
+    lines = ["| split | part acc % | V2V cm | MPJPE cm | rot err deg |", "|---|---:|---:|---:|---:|"]
+    for split in SUBSET_SPLITS:
+        m = metrics.get(split) or {}
+        cells = [f"{m[k]:.2f}" if k in m else "–" for k in METRICS]
+        lines.append(f"| {split} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def write_card(path: Path, info: Mapping[str, Any], hparams: Mapping[str, Any], params: int) -> None:
+    net = json.dumps(hparams.get("net"))
+    data = {k: v for k, v in dict(hparams.get("data") or {}).items() if k != "_target_"}
+    lines = [
+        f"# Pretrained ArtEq model `{info['name']}`",
+        "",
+        f"Load: `arteq.pretrained.card.load_module('{info['name']}')`, evaluate: "
+        f"`python -m arteq.eval ckpt_path={info['name']} data.eval_augment=so3`, fit scans: "
+        "`arteq-fit SCAN... --out DIR` (the default model).",
+        "",
+        "## Model",
+        f"- ArtEq network, {params:,} parameters; body model `{hparams['body_model'].get('name')}` "
+        "(rebuilt from its own file at load time, never stored in the checkpoint).",
+        f"- Network config: `{net}`",
+        f"- Loss weights: `{json.dumps(hparams.get('loss_weights'))}`; optimizer "
+        f"`{json.dumps(hparams.get('optimizer'))}`; scheduler `{json.dumps(hparams.get('scheduler'))}`.",
+        "",
+        "## Data",
+        f"- `{json.dumps(data)}`",
+        "- Synthetic in-distribution motions (training, val, test_id) and out-of-distribution extreme poses "
+        "(test_ood), free anny22 body; every split with a random root orientation (`augment=so3`, "
+        "`eval_augment=so3`; test_ood always so3). See docs/data.md.",
+        "",
+        "## Training",
+    ]
+    for k in ("commands", "training", "hardware"):
+        v = info.get(k)
+        if isinstance(v, list):
+            lines += [f"- {x}" for x in v]
+        elif v:
+            lines.append(f"- {v}")
+    lines += ["", "## Test metrics (128 clouds per split, the run's own test sets)", ""]
+    if info.get("test_metrics"):
+        lines.append(_fmt_table(info["test_metrics"]))
+    lines += [
+        "",
+        f"## Subset metrics (first {info['subset_n']} clouds per split; checked by the tests)",
+        "",
+        _fmt_table(info["subset_metrics"]),
+        "",
+        f"Reproduce: `python -m arteq.pretrained.card check {info['name']}` (tolerance "
+        f"{info['subset_tolerance']} absolute on each metric).",
+    ]
+    if info.get("notes"):
+        lines += ["", "## Notes", "", str(info["notes"])]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def export(run: Path, name: str, stage1_run: Path | None, notes: str | None, subset_n: int) -> Path:
+    ckpt = _best_checkpoint(run)
+    state = torch.load(str(ckpt), map_location="cpu", weights_only=True)  # once: a live run may replace it
+    out = PRETRAINED_DIR / f"{name}.ckpt"
+    export_weights(state, out, {"name": name, "source_checkpoint": ckpt.name})
+    module = load_module(out)
+    subset = subset_metrics(module, subset_n)
+    summary = _run_summary(run)
+    info = {
+        "name": name,
+        "source_checkpoint": f"{ckpt} (global step {int(state.get('global_step', -1))})",
+        "subset_n": subset_n,
+        "subset_tolerance": 0.05,
+        "subset_metrics": subset,
+        "test_metrics": summary.get("metrics"),
+        "stage2": summary,
+        "stage1": _run_summary(stage1_run) if stage1_run else None,
+        "notes": notes,
+    }
+    export_weights(state, out, info)
+    params = sum(p.numel() for p in module.net.parameters())
+    write_card(PRETRAINED_DIR / f"{name}.md", info, dict(module.hparams), params)
+    return out
+
+
+def check(name: str) -> int:
+    path = resolve_checkpoint(name)
+    info = torch.load(str(path), map_location="cpu", weights_only=True).get("arteq", {})
+    if "subset_metrics" not in info:
+        print(f"{path}: no subset metrics stored", file=sys.stderr)
+        return 2
+    got = subset_metrics(load_module(path), int(info["subset_n"]))
+    worst = 0.0
+    for split, vals in info["subset_metrics"].items():
+        for k, v in vals.items():
+            worst = max(worst, abs(got[split][k] - v))
+            print(f"{split:9s} {k:12s} card {v:8.3f} now {got[split][k]:8.3f}")
+    ok = worst <= float(info.get("subset_tolerance", 0.05))
+    print(f"max abs difference {worst:.4f}: {'OK' if ok else 'MISMATCH'}")
+    return 0 if ok else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m arteq.pretrained.card", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    e = sub.add_parser("export", help="export a run's best checkpoint as a shipped model with its card")
+    e.add_argument("run", type=Path)
+    e.add_argument("--name", default="anny22")
+    e.add_argument("--stage1-run", type=Path)
+    e.add_argument("--notes")
+    e.add_argument("--subset", type=int, default=16)
+    c = sub.add_parser("check", help="recompute a shipped model's subset metrics")
+    c.add_argument("name", nargs="?", default="anny22")
+    a = ap.parse_args(argv)
+    if a.cmd == "export":
+        print(export(a.run, a.name, a.stage1_run, a.notes, a.subset))
+        return 0
+    return check(a.name)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
