@@ -46,7 +46,8 @@ def export_weights(
 ) -> Path:
     """Write a weights-only copy of a training checkpoint (no optimizer, loops or callbacks).
 
-    ``ckpt_path``: a checkpoint file or its loaded dict. Keeps ``state_dict`` (network weights; body buffers are never saved) and ``hyper_parameters``; adds
+    ``ckpt_path``: a checkpoint file or its loaded dict. Keeps ``state_dict`` (network weights; body
+    buffers are never saved) and ``hyper_parameters``; adds
     ``info`` under ``arteq``. Written atomically (temporary file, then rename).
     """
     if isinstance(ckpt_path, dict):
