@@ -24,20 +24,12 @@ from arteq.fit.api import Fitter
 from arteq.fit.cli import main as cli_main
 from arteq.fit.demo import synthetic_scan
 from arteq.fit.files import fit_files
-
-TINY_NET = {
-    "backbone": {"channels": [8, 8, 8, 8], "neighbours": [16, 8, 16, 8], "kernel": "ico13"},
-    "segmenter": {"hidden": 32},
-    "pose_head": {"dim": 32, "heads": 4, "mlp_hidden": 32},
-    "shape_head": {"dim": 32, "heads": 4, "mlp_hidden": 32},
-}
+from conftest import TINY_NET
 
 
 @pytest.fixture(scope="module")
-def body():
-    from arteq.body import load_body_model
-
-    return load_body_model("anny22")
+def body(anny22):
+    return anny22
 
 
 @pytest.fixture(scope="module")

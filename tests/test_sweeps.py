@@ -7,12 +7,11 @@ import sys
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-import arteq  # noqa: F401  (registers the resolvers conf/ uses)
+from conftest import CONF
+from conftest import compose_config as _compose
 
-CONF = str(Path(__file__).resolve().parents[1] / "conf")
 SWEEPS = {
     "ablation_nc": {"model.net.parent_conditioning": "true,false"},
     "ablation_aug": {"data.augment": "none,so3"},
@@ -20,15 +19,6 @@ SWEEPS = {
 }
 VARIANTS = ["arteq", "arteq_nc", "arteq_so3", "pointnet2", "pointnet2_so3", "points_1000", "points_2500",
             "points_5000"]  # fmt: skip
-TINY_PN2 = [
-    "model.net.npoints=[32,8]", "model.net.sa_channels=[[8],[16]]", "model.net.global_channels=[16]",
-    "model.net.fp_channels=[8,8]", "model.net.head_hidden=8", "model.net.seg_hidden=8",
-]  # fmt: skip
-
-
-def _compose(overrides):
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        return compose("train", overrides=overrides, return_hydra_config=True)
 
 
 @pytest.mark.parametrize("name", sorted(SWEEPS))
@@ -53,9 +43,9 @@ def _tiny_module(cfg):
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
-def test_variant_composes_and_builds(variant):
+def test_variant_composes_and_builds(variant, tiny_pn2_overrides):
     cfg = _compose(["+experiment=ablation_all", f"+sweep/variant={variant}"] + (
-        TINY_PN2 if variant.startswith("pointnet2") else []))  # fmt: skip
+        tiny_pn2_overrides if variant.startswith("pointnet2") else []))  # fmt: skip
     assert cfg.variant == variant
     expect = {"arteq_nc": ("arteq", False, "none", 500), "arteq_so3": ("arteq", True, "so3", 500),
               "pointnet2": ("pointnet2", None, "none", 500), "pointnet2_so3": ("pointnet2", None, "so3", 500),
@@ -72,11 +62,11 @@ def test_variant_composes_and_builds(variant):
             assert not module.net.pose_head.parent_conditioning
 
 
-def test_baseline_experiments():
+def test_baseline_experiments(tiny_pn2_overrides):
     from arteq.models.baselines import PointNet2Regressor
 
     for name, aug in (("baseline_pointnet2", "none"), ("baseline_pointnet2_aug", "so3")):
-        cfg = _compose([f"+experiment={name}"] + TINY_PN2)
+        cfg = _compose([f"+experiment={name}"] + tiny_pn2_overrides)
         assert cfg.task_name == name and cfg.data.augment == aug
         assert isinstance(_tiny_module(cfg).net, PointNet2Regressor)
 

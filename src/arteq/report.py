@@ -19,146 +19,18 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import logging
-import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+
+from arteq.io.runs import Run, find_checkpoint, find_runs, latest_by, load_run
+from arteq.results import TEST_SPLITS as SPLITS
+from arteq.results import format_value as _fmt
+
+__all__ = ["Table", "build_tables", "find_runs", "load_run", "main", "measure_inference_ms", "write_report"]
 
 log = logging.getLogger("arteq.report")
-SPLITS = ("test_id", "test_ood")
-ARCH_NAMES = {"arteq": "ArtEq", "pointnet2": "PointNet++"}
-
-
-@dataclass
-class Run:
-    """One run folder: its test metrics, config and (optional) per-epoch curves."""
-
-    path: Path
-    summary: dict[str, Any]
-    config: dict[str, Any]
-    curves: list[dict[str, float]] = field(default_factory=list)
-
-    @property
-    def metrics(self) -> dict[str, dict[str, Any]]:
-        return self.summary.get("metrics") or {}
-
-    @property
-    def arch(self) -> str:
-        if self.summary.get("method"):
-            return "fitter"
-        return str(_get(self.config, "model.net.arch", "arteq"))
-
-    @property
-    def augment(self) -> str:
-        return str(_get(self.config, "data.augment", "none"))
-
-    @property
-    def num_points(self) -> int | None:
-        n = _get(self.config, "data.num_points", None)
-        return int(n) if n is not None else None
-
-    @property
-    def parent_conditioning(self) -> bool:
-        return bool(_get(self.config, "model.net.parent_conditioning", True))
-
-    @property
-    def base_name(self) -> str:
-        """Method without its augmentation suffix (``ArtEq``, ``ArtEq nc``, ``PointNet++``...)."""
-        if self.summary.get("method"):
-            return str(self.summary["method"])
-        name = ARCH_NAMES.get(self.arch, self.arch)
-        if self.arch == "arteq" and not self.parent_conditioning:
-            name += " nc"
-        return name
-
-    @property
-    def method(self) -> str:
-        aug = {"none": "", "so3": " + SO(3) aug", "z": " + z aug"}.get(self.augment, f" + {self.augment} aug")
-        return self.base_name + ("" if self.summary.get("method") else aug)
-
-    @property
-    def inference_ms(self) -> float | None:
-        """Per-sample time: the fitter's seconds per sample, or a measured network forward time."""
-        fit = self.summary.get("fit")
-        if fit:
-            vals = [v["seconds_per_sample"] for v in fit.values() if "seconds_per_sample" in v]
-            return 1000 * sum(vals) / len(vals) if vals else None
-        return self.summary.get("inference_ms")
-
-    def metric(self, split: str, key: str) -> float | None:
-        v = self.metrics.get(split, {}).get(key)
-        return None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
-
-
-def _get(cfg: dict[str, Any], dotted: str, default: Any) -> Any:
-    cur: Any = cfg
-    for part in dotted.split("."):
-        if not isinstance(cur, dict) or part not in cur:
-            return default
-        cur = cur[part]
-    return cur
-
-
-def read_curves(path: Path) -> list[dict[str, float]]:
-    """Per-epoch validation rows of a Lightning ``metrics.csv`` (rows holding ``val/v2v_cm``)."""
-    if not path.is_file():
-        return []
-    rows = []
-    with path.open(newline="") as f:
-        for row in csv.DictReader(f):
-            if row.get("val/v2v_cm") not in (None, ""):
-                rows.append({k: float(v) for k, v in row.items() if v not in (None, "")})
-    return rows
-
-
-def load_run(run_dir: Path) -> Run:
-    """Read ``metrics.json`` (required), the config and ``csv/metrics.csv`` of one run folder."""
-    mpath = run_dir / "metrics.json"
-    try:
-        summary = json.loads(mpath.read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{mpath}: not found") from None
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{mpath}: not valid JSON ({e})") from None
-    if not isinstance(summary, dict) or not isinstance(summary.get("metrics"), dict):
-        raise ValueError(
-            f"{mpath}: expected an object with a 'metrics' mapping {{test_id: ..., test_ood: ...}}"
-        )
-    config = summary.get("config") or {}
-    hydra_cfg = run_dir / ".hydra" / "config.yaml"
-    if not config and hydra_cfg.is_file():
-        from omegaconf import OmegaConf
-
-        config = OmegaConf.to_container(OmegaConf.load(hydra_cfg), resolve=False)
-    return Run(run_dir, summary, config, read_curves(run_dir / "csv" / "metrics.csv"))
-
-
-def find_runs(dirs: list[Path]) -> list[Run]:
-    """Every run under ``dirs`` (a folder with ``metrics.json``; a stage-1 sub-run has none)."""
-    runs = []
-    for d in dirs:
-        if not d.exists():
-            raise FileNotFoundError(f"{d}: no such run or sweep folder")
-        found = sorted(p.parent for p in d.rglob("metrics.json"))
-        if not found:
-            log.warning("%s: no metrics.json found under it", d)
-        runs += [load_run(p) for p in found]
-    return runs
-
-
-def latest_by(runs: list[Run], key) -> dict[Any, Run]:
-    """Newest run (by metrics.json mtime) per key."""
-    out: dict[Any, Run] = {}
-    for r in sorted(runs, key=lambda r: (r.path / "metrics.json").stat().st_mtime):
-        out[key(r)] = r
-    return out
-
-
-def _fmt(x: float | None, digits: int = 2) -> str:
-    return "–" if x is None else f"{x:.{digits}f}"
 
 
 def _md(header: list[str], rows: list[list[str]]) -> str:
@@ -256,8 +128,6 @@ def build_tables(runs: list[Run]) -> list[Table]:
 
 def measure_inference_ms(run: Run, repeats: int = 5, batch: int = 1) -> float | None:
     """Median forward time (ms per cloud, CPU, batch 1) of a run's checkpoint on a random cloud."""
-    from arteq.fitting.evaluate import find_checkpoint
-
     try:
         ckpt = find_checkpoint(run.path)
     except FileNotFoundError:

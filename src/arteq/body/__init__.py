@@ -1,6 +1,8 @@
-"""Body models: SMPL-format LBS, SMPL/SMPL-H loaders and the free default body ``anny22``."""
+"""Body models: SMPL-format LBS, SMPL/SMPL-H loaders, the free default body ``anny22``, and
+:func:`create_body`, the one factory every command uses."""
 
-from arteq.body.lbs import lbs, pose_features, skin
+from arteq.body.factory import create_body
+from arteq.body.lbs import lbs, pose_features, shape_blend, skin
 from arteq.body.model import BodyModel, BodyOutput, load_body_model
 from arteq.body.smpl_io import BodyModelFileError, SafeModelUnpickler, read_model_file, to_body22
 
@@ -9,10 +11,12 @@ __all__ = [
     "BodyModelFileError",
     "BodyOutput",
     "SafeModelUnpickler",
+    "create_body",
     "lbs",
     "load_body_model",
     "pose_features",
     "read_model_file",
+    "shape_blend",
     "skin",
     "to_body22",
 ]

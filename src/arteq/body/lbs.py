@@ -95,6 +95,30 @@ def skin(
     return verts, joints, global_rot
 
 
+def shape_blend(
+    betas: torch.Tensor, v_template: torch.Tensor, shapedirs: torch.Tensor, J_regressor: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Shaped rest mesh and its joints: ``v = v_template + shapedirs . betas``, ``J = J_regressor v``.
+
+    Args:
+        betas: ``[B, nb]`` (``nb <= NB``: the first ``nb`` shape directions are used).
+        v_template: ``[V, 3]``; shapedirs: ``[V, 3, NB]``; J_regressor: ``[K, V]``.
+    Returns:
+        ``v_shaped [B, V, 3]``, ``rest_joints [B, K, 3]``.
+    """
+    _check("v_template", v_template, (None, 3))
+    V = v_template.shape[0]
+    _check("shapedirs", shapedirs, (V, 3, None))
+    _check("betas", betas, (None, None))
+    _check("J_regressor", J_regressor, (None, V))
+    nb = betas.shape[1]
+    if nb > shapedirs.shape[-1]:
+        raise ValueError(f"lbs: got {nb} betas but the model has only {shapedirs.shape[-1]} shape directions")
+    v_shaped = v_template + torch.einsum("bl,vcl->bvc", betas, shapedirs[..., :nb])
+    rest_joints = torch.einsum("kv,bvc->bkc", J_regressor, v_shaped)
+    return v_shaped, rest_joints
+
+
 def lbs(
     betas: torch.Tensor,
     pose: torch.Tensor,
@@ -123,16 +147,7 @@ def lbs(
         vertices ``[B, V, 3]``, posed joints ``[B, K, 3]``, global rotations ``[B, K, 3, 3]``,
         rest joints ``[B, K, 3]``.
     """
-    _check("v_template", v_template, (None, 3))
-    V = v_template.shape[0]
-    _check("shapedirs", shapedirs, (V, 3, None))
-    _check("betas", betas, (None, None))
-    K = len(parents)
-    _check("J_regressor", J_regressor, (K, V))
-    nb = betas.shape[1]
-    if nb > shapedirs.shape[-1]:
-        raise ValueError(f"lbs: got {nb} betas but the model has only {shapedirs.shape[-1]} shape directions")
-    v_shaped = v_template + torch.einsum("bl,vcl->bvc", betas, shapedirs[..., :nb])
-    rest_joints = torch.einsum("kv,bvc->bkc", J_regressor, v_shaped)
+    _check("J_regressor", J_regressor, (len(parents), None))
+    v_shaped, rest_joints = shape_blend(betas, v_template, shapedirs, J_regressor)
     verts, joints, global_rot = skin(v_shaped, rest_joints, pose, lbs_weights, parents, posedirs, transl)
     return verts, joints, global_rot, rest_joints

@@ -1,4 +1,4 @@
-"""``BodyModel``: a thin ``nn.Module`` around :func:`arteq.body.lbs.lbs`, and :func:`load_body_model`.
+"""``BodyModel``: a thin ``nn.Module`` over :mod:`arteq.body.lbs`, and :func:`load_body_model`.
 
 One code path serves SMPL, SMPL-H (hands folded into the wrists) and the free default body ``anny22``.
 """
@@ -13,7 +13,7 @@ import roma
 import torch
 from torch import nn
 
-from arteq.body.lbs import lbs
+from arteq.body.lbs import shape_blend, skin
 from arteq.body.skeleton import NUM_JOINTS, PARENTS
 from arteq.body.smpl_io import LICENSE_HINT, BodyModelFileError, read_model_file, to_body22
 
@@ -46,7 +46,7 @@ def _pose_to_rotmats(pose: torch.Tensor) -> tuple[torch.Tensor, bool]:
 
 
 class BodyModel(nn.Module):
-    """SMPL-format body model with 22 joints; all model data in registered buffers.
+    """SMPL-format body model with 22 joints; all model data in non-persistent buffers.
 
     Buffers: ``v_template [V,3]``, ``shapedirs [V,3,num_betas]``, ``posedirs [P,V*3]`` (``P = 0``: no pose
     correctives), ``J_regressor [22,V]``, ``lbs_weights [V,22]``, ``faces [F,3]`` long, ``part_labels [V]``
@@ -81,14 +81,20 @@ class BodyModel(nn.Module):
         if w.shape != (V, NUM_JOINTS):
             raise ValueError(f"BodyModel '{name}': lbs_weights must be [{V}, 22], got {list(w.shape)}")
         pd = t(posedirs) if posedirs is not None else torch.zeros(0, V * 3, dtype=dtype)
-        self.register_buffer("v_template", v)
-        self.register_buffer("shapedirs", sd[..., :num_betas].contiguous())
-        self.register_buffer("posedirs", pd)
-        self.register_buffer("J_regressor", t(J_regressor))
-        self.register_buffer("lbs_weights", w)
-        self.register_buffer("faces", t(faces, torch.long))
-        self.register_buffer("part_labels", w.argmax(dim=1))
-        self.register_buffer("parents", torch.tensor(PARENTS, dtype=torch.long))
+        # Not persistent: a body is rebuilt from its file or config, never saved in (or loaded from) a
+        # state dict, so checkpoints of modules holding one carry no (licensed) body data.
+        buffers = {
+            "v_template": v,
+            "shapedirs": sd[..., :num_betas].contiguous(),
+            "posedirs": pd,
+            "J_regressor": t(J_regressor),
+            "lbs_weights": w,
+            "faces": t(faces, torch.long),
+            "part_labels": w.argmax(dim=1),
+            "parents": torch.tensor(PARENTS, dtype=torch.long),
+        }
+        for key, value in buffers.items():
+            self.register_buffer(key, value, persistent=False)
         self.num_betas = int(num_betas)
         self.num_vertices = int(V)
         self.name = name
@@ -165,20 +171,17 @@ class BodyModel(nn.Module):
         betas = betas.expand(B, -1)
         if transl is not None:
             transl = transl.expand(B, -1)
-        out = lbs(
-            betas,
-            rot,
-            self.v_template,
-            self.shapedirs,
-            self.posedirs if self.posedirs.shape[0] else None,
-            self.J_regressor,
-            PARENTS,
-            self.lbs_weights,
-            transl,
-        )
+        v_shaped, rest_joints = self.shape(betas)
+        posedirs = self.posedirs if self.posedirs.shape[0] else None
+        out = (*skin(v_shaped, rest_joints, rot, self.lbs_weights, PARENTS, posedirs, transl), rest_joints)
         if unbatched and all(unbatched):
             out = tuple(o[0] for o in out)
         return BodyOutput(*out)
+
+    def shape(self, betas: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Shaped rest vertices ``[B, V, 3]`` and rest joints ``[B, 22, 3]`` for ``betas [B, nb]``
+        (linear shape blendshapes; a procedural body may override this, the skinning stays shared)."""
+        return shape_blend(betas, self.v_template, self.shapedirs, self.J_regressor)
 
     def extra_repr(self) -> str:
         return (

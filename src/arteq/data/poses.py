@@ -25,6 +25,7 @@ import roma
 import torch
 
 from arteq.body.skeleton import JOINT_NAMES, NUM_JOINTS
+from arteq.geometry.rotations import euler_to_rotmat, random_rotmat
 
 J = {name: i for i, name in enumerate(JOINT_NAMES)}
 _LEFT_RIGHT = [(J[n], J["right_" + n[5:]]) for n in JOINT_NAMES if n.startswith("left_")]
@@ -35,26 +36,6 @@ _MIRROR = torch.tensor([1.0, -1.0, -1.0])
 
 # ----------------------------------------------------------------------------------------------
 # Small helpers
-
-
-def euler_to_rotmat(angles_deg: torch.Tensor) -> torch.Tensor:
-    """Intrinsic XYZ Euler angles in degrees ``[..., 3]`` -> ``Rx(a) Ry(b) Rz(c)`` ``[..., 3, 3]``."""
-    r = torch.deg2rad(angles_deg)
-    ca, cb, cc = torch.cos(r).unbind(-1)
-    sa, sb, sc = torch.sin(r).unbind(-1)
-    rows = [
-        cb * cc, -cb * sc, sb,
-        sa * sb * cc + ca * sc, -sa * sb * sc + ca * cc, -sa * cb,
-        -ca * sb * cc + sa * sc, ca * sb * sc + sa * cc, ca * cb,
-    ]  # fmt: skip
-    return torch.stack(rows, -1).reshape(*angles_deg.shape[:-1], 3, 3)
-
-
-def random_rotmat(n: int, generator: torch.Generator, dtype: torch.dtype = torch.float64) -> torch.Tensor:
-    """``n`` Haar-uniform rotations ``[n, 3, 3]`` (normalised Gaussian quaternions)."""
-    q = torch.randn(n, 4, generator=generator, dtype=dtype)
-    q = q / q.norm(dim=-1, keepdim=True)
-    return roma.unitquat_to_rotmat(q)
 
 
 def mirror_left_to_right(angles: torch.Tensor) -> torch.Tensor:

@@ -9,7 +9,7 @@ Names are imported lazily so that ``arteq-fit --help`` starts without loading to
 
 from __future__ import annotations
 
-from typing import Any
+from arteq._lazy import lazy_exports
 
 __all__ = ["FitResult", "Fitter", "RunSummary", "fit_files", "fit_points", "get_fitter", "write_result"]
 
@@ -22,11 +22,4 @@ _WHERE = {
     "fit_files": "arteq.fit.files",
     "write_result": "arteq.fit.files",
 }
-
-
-def __getattr__(name: str) -> Any:
-    if name in _WHERE:
-        import importlib
-
-        return getattr(importlib.import_module(_WHERE[name]), name)
-    raise AttributeError(f"module 'arteq.fit' has no attribute {name!r}")
+__getattr__ = lazy_exports(__name__, _WHERE)

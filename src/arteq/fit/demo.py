@@ -33,7 +33,8 @@ def synthetic_scan(
     import torch
 
     from arteq.data.dataset import BodyScanDataset
-    from arteq.data.poses import SyntheticIDPoses, SyntheticOODPoses, random_rotmat
+    from arteq.data.poses import SyntheticIDPoses, SyntheticOODPoses
+    from arteq.geometry.rotations import random_rotmat
 
     src = SyntheticOODPoses() if split == "test_ood" else SyntheticIDPoses()
     ds = BodyScanDataset(src, body, f"demo_{split}", index + 1, seed=seed, num_points=num_points,

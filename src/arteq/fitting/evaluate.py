@@ -4,7 +4,7 @@
 fits from the standard start (rest pose, 24 root orientations tried, centroid translation);
 ``--refine RUN_DIR`` starts from that ArtEq run's prediction instead (ArtEq + refinement) and uses the
 run's data configuration. Writes ``metrics.json`` / ``metrics.md`` in the format of
-:func:`arteq.eval.write_metrics` (read by ``python -m arteq.report``), with ``method`` and ``fit``
+:func:`arteq.io.runs.write_metrics` (read by ``python -m arteq.report``), with ``method`` and ``fit``
 (iterations, seconds per sample) added. Part accuracy: each point takes the part label of its nearest
 fitted vertex.
 """
@@ -15,39 +15,17 @@ import argparse
 import json
 import logging
 import time
-from pathlib import Path
 from typing import Any
 
 import torch
 
 from arteq.fitting.fit import fit_body
 from arteq.geometry.pointops import knn
+from arteq.io import runs
+from arteq.results import TEST_SPLITS, metric_values, metrics_markdown
 from arteq.training.metrics import BodyFitMetrics
 
 log = logging.getLogger("arteq.fitting")
-SPLITS = ("test_id", "test_ood")
-
-
-def find_checkpoint(run_dir: Path) -> Path:
-    """The best checkpoint of a run (``checkpoints/epoch*.ckpt``), else ``checkpoints/last.ckpt``."""
-    ckpts = sorted((run_dir / "checkpoints").glob("epoch*.ckpt"))
-    if ckpts:
-        return ckpts[-1]
-    last = run_dir / "checkpoints" / "last.ckpt"
-    if last.is_file():
-        return last
-    raise FileNotFoundError(f"{run_dir}: no checkpoints/epoch*.ckpt or checkpoints/last.ckpt")
-
-
-def load_run_data_config(run_dir: Path) -> dict[str, Any]:
-    """``data`` and ``body_model`` sections of a run's ``.hydra/config.yaml``."""
-    from omegaconf import OmegaConf
-
-    path = run_dir / ".hydra" / "config.yaml"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: not found (is {run_dir} a training run folder?)")
-    cfg = OmegaConf.to_container(OmegaConf.load(path), resolve=False)
-    return {"data": dict(cfg.get("data") or {}), "body_model": dict(cfg.get("body_model") or {})}
 
 
 def evaluate_fitter(
@@ -64,7 +42,7 @@ def evaluate_fitter(
     """
     datamodule.setup("test")
     out: dict[str, Any] = {"metrics": {}, "fit": {}}
-    for split, loader in zip(SPLITS, datamodule.test_dataloader()):
+    for split, loader in zip(TEST_SPLITS, datamodule.test_dataloader()):
         metric = BodyFitMetrics()
         seconds, iters, n = 0.0, [], 0
         for batch in loader:
@@ -94,13 +72,7 @@ def evaluate_fitter(
             log.info("%s: %d samples fitted (%.1f s)", split, n, seconds)
         if n == 0:
             raise ValueError(f"{split}: the test set is empty")
-        values = metric.compute()
-        per_part = values.pop("rot_err_deg_per_part")
-        from arteq.body.skeleton import JOINT_NAMES
-
-        res_split = {k: float(v) for k, v in values.items()}
-        res_split["rot_err_deg_per_part"] = {j: float(v) for j, v in zip(JOINT_NAMES, per_part)}
-        out["metrics"][split] = res_split
+        out["metrics"][split] = metric_values(metric.compute())
         out["fit"][split] = {
             "samples": n,
             "mean_iterations": sum(iters) / len(iters),
@@ -132,25 +104,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from arteq.data import BodyScanDataModule
 
     module = None
-    if args.refine:
-        run_dir = Path(args.refine)
-        from arteq.training.module import ArtEqModule
-
-        ckpt = find_checkpoint(run_dir)
-        module = ArtEqModule.load_from_checkpoint(str(ckpt), map_location="cpu", weights_only=True).eval()
-        run_cfg = load_run_data_config(run_dir)
-        data_cfg = {k: v for k, v in run_cfg["data"].items() if k not in ("_target_", "body_model")}
-        body_cfg = dict(module.hparams.body_model)
-        method = "ArtEq + refinement"
-    elif args.data_from:
-        run_cfg = load_run_data_config(Path(args.data_from))
-        data_cfg = {k: v for k, v in run_cfg["data"].items() if k not in ("_target_", "body_model")}
-        body_cfg = {k: v for k, v in run_cfg["body_model"].items() if k != "_target_"}
-        method = "Optimisation (Chamfer)"
+    method = "Optimisation (Chamfer)"
+    if args.refine or args.data_from:
+        run_cfg = runs.read_config(args.refine or args.data_from)
+        data_cfg = runs.data_kwargs(run_cfg)
+        body_cfg = runs.body_config(run_cfg)
     else:
         data_cfg = {"source": "synthetic", "num_points": args.num_points}
         body_cfg = {"name": args.body}
-        method = "Optimisation (Chamfer)"
+    if args.refine:
+        module = runs.load_module(args.refine)
+        body_cfg = dict(module.hparams.body_model)
+        method = "ArtEq + refinement"
     # Test sets are drawn per index from fixed seeds: the first `samples` clouds are the run's first ones.
     data_cfg.update(
         eval_batch_size=args.batch_size, batch_size=args.batch_size, num_workers=0, test_size=args.samples
@@ -169,17 +134,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "parameters": sum(p.numel() for p in module.net.parameters()) if module is not None else 0,
         "config": {"fitter": fit_kwargs, "data": data_cfg, "body_model": body_cfg, "refine": args.refine},
     }
-    from arteq.eval import metrics_table, write_metrics
-
-    out = Path(args.out)
-    write_metrics(summary, out)
     timing = ", ".join(
         f"{s}: {v['seconds_per_sample']:.1f} s/sample, {v['mean_iterations']:.0f} it"
         for s, v in result["fit"].items()
     )
-    (out / "metrics.md").write_text(
-        f"# {method}: test metrics\n\n{metrics_table({method: result['metrics']})}\n\n{timing}\n"
-    )
+    runs.write_metrics(args.out, summary, metrics_markdown(method, {method: result["metrics"]}, note=timing))
     log.info("fit timing: %s", json.dumps(result["fit"]))
     return summary
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -144,136 +145,31 @@ def fit_body(
         raise ValueError(f"fit_body: iters must be >= 0, got {iters}")
     t0 = time.time()
     init = dict(init or {})
-    b = points.shape[0]
-    dtype = body.lbs_weights.dtype
-    device = points.device
+    b, nb = points.shape[0], int(body.num_betas)
+    dtype, device = body.lbs_weights.dtype, points.device
     points = points.to(dtype)
-    nb = int(body.num_betas)
+    like = {"dtype": dtype, "device": device}
 
-    if "pose" in init and init["pose"] is not None:
-        p = init["pose"].detach().to(device=device, dtype=dtype)
-        if p.shape == (b, NUM_JOINTS, 3, 3):
-            aa = roma.rotmat_to_rotvec(roma.special_procrustes(p))
-        elif p.shape == (b, NUM_JOINTS, 3):
-            aa = p.clone()
-        else:
-            raise ValueError(
-                f"fit_body: init['pose'] must be [{b},22,3,3] or [{b},22,3], got {tuple(p.shape)}"
-            )
-    else:
-        aa = torch.zeros(b, NUM_JOINTS, 3, dtype=dtype, device=device)
-    if "betas" in init and init["betas"] is not None:
-        betas = init["betas"].detach().to(device=device, dtype=dtype).clone()
-        if betas.shape != (b, nb):
-            raise ValueError(f"fit_body: init['betas'] must be [{b},{nb}], got {tuple(betas.shape)}")
-    else:
-        betas = torch.zeros(b, nb, dtype=dtype, device=device)
+    aa = _start_pose(init.get("pose"), b, like)
+    given = _given(init, "betas", (b, nb), like)
+    betas = given if given is not None else torch.zeros(b, nb, **like)
+    subset = _mesh_subset(body, mesh_subset, nb, like)
+    if aa is None:
+        aa = _best_root(body, points, betas, subset, num_roots, w_p2m, w_m2p, like)
+    transl = _given(init, "transl", (b, 3), like)
+    if transl is None:
+        transl = _centroid_transl(body, points, aa, betas)
 
-    subset = None
-    if isinstance(mesh_subset, torch.Tensor):
-        subset = mesh_subset.to(device=device, dtype=torch.long)
-        if subset.ndim != 1 or subset.numel() == 0 or int(subset.max()) >= body.lbs_weights.shape[0]:
-            raise ValueError("fit_body: mesh_subset indices must be a non-empty [S] tensor of vertex indices")
-    elif mesh_subset is not None and mesh_subset < body.lbs_weights.shape[0]:
-        with torch.no_grad():
-            rest = body(betas=torch.zeros(1, nb, dtype=dtype, device=device)).vertices
-            rest = rest if rest.dim() == 3 else rest[None]
-            subset = farthest_point_sample(rest[:1], int(mesh_subset))[0]
-
-    def centroid_transl(aa_, betas_):
-        with torch.no_grad():
-            v = body(betas=betas_, pose=aa_).vertices
-            return points.mean(1) - v.mean(1)
-
-    if "pose" not in init or init["pose"] is None:
-        cands = root_candidates(num_roots, dtype=dtype, device=device)
-        if len(cands) > 1:
-            best, best_cost = None, None
-            for c in cands:
-                aa_c = aa.clone()
-                aa_c[:, 0] = roma.rotmat_to_rotvec(c).expand(b, 3)
-                t_c = centroid_transl(aa_c, betas)
-                with torch.no_grad():
-                    v = body(betas=betas, pose=aa_c, transl=t_c).vertices
-                    p2m, m2p = chamfer_terms(points, v, subset)
-                cost = w_p2m * p2m + w_m2p * m2p
-                if best is None:
-                    best, best_cost = aa_c, cost
-                else:
-                    better = cost < best_cost
-                    best = torch.where(better[:, None, None], aa_c, best)
-                    best_cost = torch.minimum(cost, best_cost)
-            aa = best
-    if "transl" in init and init["transl"] is not None:
-        transl = init["transl"].detach().to(device=device, dtype=dtype).clone()
-        if transl.shape != (b, 3):
-            raise ValueError(f"fit_body: init['transl'] must be [{b},3], got {tuple(transl.shape)}")
-    else:
-        transl = centroid_transl(aa, betas)
-
-    aa.requires_grad_(True)
-    transl.requires_grad_(True)
-    params = [aa, transl]
+    params = [aa.requires_grad_(True), transl.requires_grad_(True)]
     if fit_betas:
-        betas.requires_grad_(True)
-        params.append(betas)
+        params.append(betas.requires_grad_(True))
+    weights = {"p2m": w_p2m, "m2p": w_m2p, "pose": w_pose, "limit": w_limit, "betas": w_betas}
     limit2 = math.radians(joint_limit_deg) ** 2
 
     def objective() -> tuple[torch.Tensor, dict[str, float]]:
-        v = body(betas=betas, pose=aa, transl=transl).vertices
-        p2m, m2p = chamfer_terms(points, v, subset)
-        theta2 = aa[:, 1:].square().sum(-1)
-        terms = {
-            "p2m": p2m.mean(),
-            "m2p": m2p.mean(),
-            "pose": theta2.mean(),
-            "limit": torch.relu(theta2 - limit2).mean(),
-            "betas": betas.square().mean(),
-        }
-        total = (
-            w_p2m * terms["p2m"] + w_m2p * terms["m2p"] + w_pose * terms["pose"]
-            + w_limit * terms["limit"] + w_betas * terms["betas"]
-        )  # fmt: skip
-        return total, {k: float(v.detach()) for k, v in terms.items()} | {"loss": float(total.detach())}
+        return _objective(body, points, subset, aa, betas, transl, weights, limit2)
 
-    history: list[dict[str, float]] = []
-    done = 0
-    if iters > 0:
-        if optimizer == "adam":
-            opt = torch.optim.Adam(params, lr=lr)
-            sched = torch.optim.lr_scheduler.LambdaLR(
-                opt, lambda s: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, s / max(1, iters))))
-            )
-        else:
-            opt = torch.optim.LBFGS(params, lr=lr, max_iter=20, line_search_fn="strong_wolfe")
-            sched = None
-        for it in range(iters):
-            if optimizer == "adam":
-                opt.zero_grad(set_to_none=True)
-                loss, info = objective()
-                loss.backward()
-                opt.step()
-                sched.step()
-            else:
-
-                def closure():
-                    opt.zero_grad(set_to_none=True)
-                    loss, _ = objective()
-                    loss.backward()
-                    return loss
-
-                opt.step(closure)
-                with torch.no_grad():
-                    _, info = objective()
-            history.append({"iter": it} | info)
-            done = it + 1
-            if not math.isfinite(info["loss"]):
-                raise FloatingPointError(f"fit_body: objective became {info['loss']} at iteration {it}")
-            if len(history) > patience:
-                old = history[-1 - patience]["loss"]
-                if old - info["loss"] < tol * max(abs(old), 1e-12):
-                    break
-
+    history = _optimise(params, objective, iters, lr, optimizer, tol, patience)
     with torch.no_grad():
         out = body(betas=betas, pose=aa, transl=transl)
         pose = roma.rotvec_to_rotmat(aa)
@@ -286,6 +182,171 @@ def fit_body(
         joints=out.joints.detach(),
         global_rotmats=out.global_rotmats.detach(),
         history=history,
-        iterations=done,
+        iterations=len(history),
         seconds=time.time() - t0,
     )
+
+
+# ------------------------------------------------------------------ the pieces of fit_body
+def _given(
+    init: dict[str, Any], key: str, shape: tuple[int, ...], like: dict[str, Any]
+) -> torch.Tensor | None:
+    """A detached copy of ``init[key]`` checked to have ``shape``, or None when not given."""
+    if init.get(key) is None:
+        return None
+    x = init[key].detach().to(**like).clone()
+    if x.shape != shape:
+        want = ",".join(map(str, shape))
+        raise ValueError(f"fit_body: init[{key!r}] must be [{want}], got {tuple(x.shape)}")
+    return x
+
+
+def _start_pose(pose: torch.Tensor | None, b: int, like: dict[str, Any]) -> torch.Tensor | None:
+    """Local axis-angle ``[B, 22, 3]`` from given rotmats or axis-angle; None when not given."""
+    if pose is None:
+        return None
+    p = pose.detach().to(**like)
+    if p.shape == (b, NUM_JOINTS, 3, 3):
+        return roma.rotmat_to_rotvec(roma.special_procrustes(p))
+    if p.shape == (b, NUM_JOINTS, 3):
+        return p.clone()
+    raise ValueError(f"fit_body: init['pose'] must be [{b},22,3,3] or [{b},22,3], got {tuple(p.shape)}")
+
+
+def _mesh_subset(
+    body: torch.nn.Module, mesh_subset: int | torch.Tensor | None, nb: int, like: dict[str, Any]
+) -> torch.Tensor | None:
+    """Vertex indices of the mesh -> points term: given, farthest-point sampled on the rest mesh, or
+    None (all vertices)."""
+    num_vertices = body.lbs_weights.shape[0]
+    if isinstance(mesh_subset, torch.Tensor):
+        subset = mesh_subset.to(device=like["device"], dtype=torch.long)
+        if subset.ndim != 1 or subset.numel() == 0 or int(subset.max()) >= num_vertices:
+            raise ValueError("fit_body: mesh_subset indices must be a non-empty [S] tensor of vertex indices")
+        return subset
+    if mesh_subset is None or mesh_subset >= num_vertices:
+        return None
+    with torch.no_grad():
+        rest = body(betas=torch.zeros(1, nb, **like)).vertices
+        rest = rest if rest.dim() == 3 else rest[None]
+        return farthest_point_sample(rest[:1], int(mesh_subset))[0]
+
+
+def _centroid_transl(body: torch.nn.Module, points: torch.Tensor, aa: torch.Tensor, betas: torch.Tensor):
+    """Translation putting the posed mesh's vertex centroid on the cloud's centroid."""
+    with torch.no_grad():
+        v = body(betas=betas, pose=aa).vertices
+        return points.mean(1) - v.mean(1)
+
+
+def _best_root(
+    body: torch.nn.Module,
+    points: torch.Tensor,
+    betas: torch.Tensor,
+    subset: torch.Tensor | None,
+    num_roots: int,
+    w_p2m: float,
+    w_m2p: float,
+    like: dict[str, Any],
+) -> torch.Tensor:
+    """Standard start: rest pose with, per cloud, the root orientation of :func:`root_candidates`
+    of lowest initial Chamfer cost (centroid translation)."""
+    b = points.shape[0]
+    aa = torch.zeros(b, NUM_JOINTS, 3, **like)
+    cands = root_candidates(num_roots, **like)
+    if len(cands) == 1:
+        return aa
+    best, best_cost = None, None
+    for c in cands:
+        aa_c = aa.clone()
+        aa_c[:, 0] = roma.rotmat_to_rotvec(c).expand(b, 3)
+        t_c = _centroid_transl(body, points, aa_c, betas)
+        with torch.no_grad():
+            v = body(betas=betas, pose=aa_c, transl=t_c).vertices
+            p2m, m2p = chamfer_terms(points, v, subset)
+        cost = w_p2m * p2m + w_m2p * m2p
+        if best is None:
+            best, best_cost = aa_c, cost
+        else:
+            better = cost < best_cost
+            best = torch.where(better[:, None, None], aa_c, best)
+            best_cost = torch.minimum(cost, best_cost)
+    return best
+
+
+def _objective(
+    body: torch.nn.Module,
+    points: torch.Tensor,
+    subset: torch.Tensor | None,
+    aa: torch.Tensor,
+    betas: torch.Tensor,
+    transl: torch.Tensor,
+    weights: dict[str, float],
+    limit2: float,
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """The weighted objective (module docstring) and its terms as floats (plus ``loss``)."""
+    v = body(betas=betas, pose=aa, transl=transl).vertices
+    p2m, m2p = chamfer_terms(points, v, subset)
+    theta2 = aa[:, 1:].square().sum(-1)
+    terms = {
+        "p2m": p2m.mean(),
+        "m2p": m2p.mean(),
+        "pose": theta2.mean(),
+        "limit": torch.relu(theta2 - limit2).mean(),
+        "betas": betas.square().mean(),
+    }
+    total = (
+        weights["p2m"] * terms["p2m"] + weights["m2p"] * terms["m2p"] + weights["pose"] * terms["pose"]
+        + weights["limit"] * terms["limit"] + weights["betas"] * terms["betas"]
+    )  # fmt: skip
+    return total, {k: float(v.detach()) for k, v in terms.items()} | {"loss": float(total.detach())}
+
+
+def _optimise(
+    params: list[torch.Tensor],
+    objective: Callable[[], tuple[torch.Tensor, dict[str, float]]],
+    iters: int,
+    lr: float,
+    optimizer: str,
+    tol: float,
+    patience: int,
+) -> list[dict[str, float]]:
+    """Minimise ``objective`` over ``params`` (Adam with cosine-decayed lr, or L-BFGS); stop early
+    when the loss improved by less than ``tol`` (relative) over ``patience`` iterations. Returns the
+    terms per iteration."""
+    history: list[dict[str, float]] = []
+    if iters == 0:
+        return history
+    if optimizer == "adam":
+        opt = torch.optim.Adam(params, lr=lr)
+        sched = torch.optim.lr_scheduler.LambdaLR(
+            opt, lambda s: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, s / max(1, iters))))
+        )
+    else:
+        opt = torch.optim.LBFGS(params, lr=lr, max_iter=20, line_search_fn="strong_wolfe")
+
+    def closure():
+        opt.zero_grad(set_to_none=True)
+        loss, _ = objective()
+        loss.backward()
+        return loss
+
+    for it in range(iters):
+        if optimizer == "adam":
+            opt.zero_grad(set_to_none=True)
+            loss, info = objective()
+            loss.backward()
+            opt.step()
+            sched.step()
+        else:
+            opt.step(closure)
+            with torch.no_grad():
+                _, info = objective()
+        history.append({"iter": it} | info)
+        if not math.isfinite(info["loss"]):
+            raise FloatingPointError(f"fit_body: objective became {info['loss']} at iteration {it}")
+        if len(history) > patience:
+            old = history[-1 - patience]["loss"]
+            if old - info["loss"] < tol * max(abs(old), 1e-12):
+                break
+    return history

@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from arteq.data.datamodule import build_body  # noqa: E402
+from arteq.body import create_body  # noqa: E402
 from arteq.data.dataset import BodyScanDataset  # noqa: E402
 from arteq.data.poses import SyntheticIDPoses, SyntheticOODPoses  # noqa: E402
 
@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> Path:
     ap.add_argument("--num-points", type=int, default=3000)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    body = build_body({"name": args.body})
+    body = create_body(name=args.body)
     rows, titles = [], []
     for name, src in (
         ("ID (synthetic everyday motions)", SyntheticIDPoses()),

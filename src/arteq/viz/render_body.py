@@ -17,7 +17,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
-from arteq.body import load_body_model  # noqa: E402
+from arteq.body import create_body  # noqa: E402
 from arteq.body.skeleton import JOINT_NAMES  # noqa: E402
 
 
@@ -87,10 +87,10 @@ def render(body, out: Path, max_faces: int = 30000, dpi: int = 70, azim: float =
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=Path("experiments/figures/body_anny22.png"))
-    ap.add_argument("--body", default="anny22", help="anny22 | smpl | smplh")
+    ap.add_argument("--body", default="anny22", help="anny22 | smpl | smplh | toy")
     ap.add_argument("--model-path", default=None)
     args = ap.parse_args(argv)
-    body = load_body_model(args.body, model_path=args.model_path)
+    body = create_body(name=args.body, model_path=args.model_path)
     print(render(body, args.out))
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any
 
 import matplotlib
 
@@ -13,15 +12,16 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from arteq.body.skeleton import JOINT_NAMES  # noqa: E402
+from arteq.io.runs import Run, body_config, data_kwargs, load_module  # noqa: E402
 
 log = logging.getLogger("arteq.report")
 
 
-def _label(run: Any) -> str:
+def _label(run: Run) -> str:
     return f"{run.method} ({run.num_points} pts)" if run.num_points is not None else run.method
 
 
-def convergence_plot(runs: list[Any], out: Path) -> Path:
+def convergence_plot(runs: list[Run], out: Path) -> Path:
     """Validation V2V, MPJPE and part accuracy per epoch, one line per run with curves."""
     keys = [
         ("val/v2v_cm", "val V2V (cm)"),
@@ -48,7 +48,7 @@ def convergence_plot(runs: list[Any], out: Path) -> Path:
     return out
 
 
-def per_part_plot(runs: list[Any], out: Path) -> Path:
+def per_part_plot(runs: list[Run], out: Path) -> Path:
     """Global rotation error per body part (test_id and test_ood), grouped bars per run."""
     with_parts = [r for r in runs if "rot_err_deg_per_part" in r.metrics.get("test_ood", {})]
     fig, axes = plt.subplots(2, 1, figsize=(14, 7), sharex=True)
@@ -76,7 +76,7 @@ def _scatter(ax, pts: np.ndarray, color: str, title: str, size: float = 1.0) -> 
     ax.axis("off")
 
 
-def qualitative_figure(runs: list[Any], out: Path, samples: int = 3, max_methods: int = 5) -> Path | None:
+def qualitative_figure(runs: list[Run], out: Path, samples: int = 3, max_methods: int = 5) -> Path | None:
     """Input cloud, ground truth and each network run's fit for the first ``samples`` OOD clouds.
 
     The clouds are the test_ood set of the first run's data config; every network (at most
@@ -86,17 +86,13 @@ def qualitative_figure(runs: list[Any], out: Path, samples: int = 3, max_methods
     import torch
 
     from arteq.data import BodyScanDataModule
-    from arteq.fitting.evaluate import find_checkpoint
-    from arteq.training.module import ArtEqModule
 
     nets = []
     for run in runs:
         if run.arch == "fitter" or len(nets) >= max_methods:
             continue
         try:
-            module = ArtEqModule.load_from_checkpoint(
-                str(find_checkpoint(run.path)), map_location="cpu", weights_only=True
-            ).eval()
+            module = load_module(run.path)
         except Exception as e:  # no checkpoint, or one of an older code version: leave the run out
             log.warning("%s: left out of the qualitative figure (%s: %s)", run.path, type(e).__name__, e)
             continue
@@ -104,12 +100,9 @@ def qualitative_figure(runs: list[Any], out: Path, samples: int = 3, max_methods
     if not nets:
         return None
     first = nets[0][0]
-    data = {k: v for k, v in (first.config.get("data") or {}).items() if k != "_target_"}
+    data = data_kwargs(first.config)
     data.update(test_size=max(samples, 1), num_workers=0)
-    body_cfg = {
-        k: v for k, v in (first.config.get("body_model") or {"name": "anny22"}).items() if k != "_target_"
-    }
-    dm = BodyScanDataModule(body_model=body_cfg, **data)
+    dm = BodyScanDataModule(body_model=body_config(first.config), **data)
     ds = dm.fixed_set("test_ood")
     items = [ds[i] for i in range(min(samples, len(ds)))]
     batch = {k: torch.stack([it[k] for it in items]) for k in items[0]}

@@ -1,0 +1,28 @@
+"""Rotation helpers: Euler angles, Haar-uniform random rotations (float64 by default)."""
+
+from __future__ import annotations
+
+import roma
+import torch
+
+__all__ = ["euler_to_rotmat", "random_rotmat"]
+
+
+def euler_to_rotmat(angles_deg: torch.Tensor) -> torch.Tensor:
+    """Intrinsic XYZ Euler angles in degrees ``[..., 3]`` -> ``Rx(a) Ry(b) Rz(c)`` ``[..., 3, 3]``."""
+    r = torch.deg2rad(angles_deg)
+    ca, cb, cc = torch.cos(r).unbind(-1)
+    sa, sb, sc = torch.sin(r).unbind(-1)
+    rows = [
+        cb * cc, -cb * sc, sb,
+        sa * sb * cc + ca * sc, -sa * sb * sc + ca * cc, -sa * cb,
+        -ca * sb * cc + sa * sc, ca * sb * sc + sa * cc, ca * cb,
+    ]  # fmt: skip
+    return torch.stack(rows, -1).reshape(*angles_deg.shape[:-1], 3, 3)
+
+
+def random_rotmat(n: int, generator: torch.Generator, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+    """``n`` Haar-uniform rotations ``[n, 3, 3]`` (normalised Gaussian quaternions)."""
+    q = torch.randn(n, 4, generator=generator, dtype=dtype)
+    q = q / q.norm(dim=-1, keepdim=True)
+    return roma.unitquat_to_rotmat(q)

@@ -1,0 +1,128 @@
+"""Test results as data: split names, the nested results dict, method names, the Markdown table.
+
+One shape for every command that tests something (training, ``arteq.eval``, the fitter evaluation)::
+
+    {"test_id": {"part_acc": 91.2, "v2v_cm": 2.1, "mpjpe_cm": 1.7, "rot_err_deg": 8.3,
+                 "rot_err_deg_per_part": {"pelvis": 4.1, ...}},
+     "test_ood": {...}}
+
+built straight from the metric objects (:func:`split_results`), never parsed back from logger keys.
+Method names come from the run's config (:func:`method_name`), so a PointNet++ run is labelled
+"PointNet++". Plain Python only: no torch import at module level.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+#: The evaluation splits, in the order the datamodule returns their loaders.
+TEST_SPLITS = ("test_id", "test_ood")
+#: Scalar metrics of :class:`arteq.training.metrics.BodyFitMetrics`, in table order.
+METRIC_KEYS = ("part_acc", "v2v_cm", "mpjpe_cm", "rot_err_deg")
+#: Column labels of the splits in tables.
+SPLIT_LABELS = {"test_id": "ID", "test_ood": "OOD"}
+#: Unit line under every metrics table.
+UNITS_NOTE = "part_acc in %, v2v/mpjpe in cm (MPJPE over the 22 body joints), rot_err in degrees."
+#: Row label of the mean-pose floor.
+FLOOR_NAME = "mean pose (floor)"
+#: Suffix of the method name per training augmentation.
+AUGMENT_SUFFIX = {"none": "", "so3": " + SO(3) aug", "z": " + z aug"}
+
+
+def _number(x: Any) -> float:
+    return float(x.item() if hasattr(x, "item") else x)
+
+
+def metric_values(values: Mapping[str, Any], per_part: bool = True) -> dict[str, Any]:
+    """One split's results from ``BodyFitMetrics.compute()``: floats, and the per-part rotation
+    error as ``{joint name: degrees}`` (dropped with ``per_part=False``)."""
+    from arteq.body.skeleton import JOINT_NAMES
+
+    out: dict[str, Any] = {}
+    for key, v in values.items():
+        if key == "rot_err_deg_per_part":
+            if per_part:
+                out[key] = {j: _number(x) for j, x in zip(JOINT_NAMES, v)}
+        else:
+            out[key] = _number(v)
+    return out
+
+
+def split_results(metrics: Mapping[str, Any] | Iterable[Any], per_part: bool = True) -> dict[str, dict]:
+    """``{split: metric_values(metric.compute())}`` for metric objects given per split (a mapping
+    ``split -> metric`` or a sequence in :data:`TEST_SPLITS` order). Metrics never updated are left out
+    when they say so (``update_called`` of torchmetrics)."""
+    items = metrics.items() if isinstance(metrics, Mapping) else zip(TEST_SPLITS, metrics)
+    return {
+        split: metric_values(m.compute(), per_part=per_part)
+        for split, m in items
+        if getattr(m, "update_called", True)
+    }
+
+
+def config_get(cfg: Mapping[str, Any] | None, dotted: str, default: Any = None) -> Any:
+    """``cfg["a"]["b"]`` for ``"a.b"`` in a plain or OmegaConf mapping, ``default`` when absent."""
+    cur: Any = cfg
+    for part in dotted.split("."):
+        if not isinstance(cur, Mapping) or part not in cur:
+            return default
+        cur = cur[part]
+    return cur
+
+
+def architecture(cfg: Mapping[str, Any] | None) -> str:
+    """The network's registry name (``model.net.arch``, default ``arteq``)."""
+    return str(config_get(cfg, "model.net.arch", "arteq"))
+
+
+def base_method_name(cfg: Mapping[str, Any] | None) -> str:
+    """Method without its augmentation suffix: ``ArtEq``, ``ArtEq nc`` (no parent conditioning),
+    ``PointNet++``..."""
+    from arteq.models.registry import display_name
+
+    arch = architecture(cfg)
+    name = display_name(arch)
+    if arch == "arteq" and not bool(config_get(cfg, "model.net.parent_conditioning", True)):
+        name += " nc"
+    return name
+
+
+def method_name(cfg: Mapping[str, Any] | None) -> str:
+    """Method label of a training config: architecture, ``nc`` and the training augmentation
+    (``ArtEq + SO(3) aug``). The point count is not part of it (reports give it a column)."""
+    augment = str(config_get(cfg, "data.augment", "none"))
+    return base_method_name(cfg) + AUGMENT_SUFFIX.get(augment, f" + {augment} aug")
+
+
+def format_value(x: Any, digits: int = 2) -> str:
+    """A table cell: ``–`` for missing or NaN values."""
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "–"
+    return f"{x:.{digits}f}"
+
+
+def metrics_table(rows: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str:
+    """Markdown table: one row per method (``{name: results}``), ID and OOD columns per metric."""
+    head = "| method | " + " | ".join(
+        f"{SPLIT_LABELS[s]} {m}" for m in METRIC_KEYS for s in TEST_SPLITS
+    ) + " |"  # fmt: skip
+    lines = [head, "|---|" + "---:|" * (len(METRIC_KEYS) * len(TEST_SPLITS))]
+    for name, res in rows.items():
+        cells = [format_value(res.get(s, {}).get(m)) for m in METRIC_KEYS for s in TEST_SPLITS]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def metrics_markdown(title: str, rows: Mapping[str, Mapping[str, Any]], note: str = UNITS_NOTE) -> str:
+    """The ``metrics.md`` of a run: ``# <title>: test metrics``, the table, a note line."""
+    return "\n".join([f"# {title}: test metrics", "", metrics_table(rows), "", note])
+
+
+def summary_rows(summary: Mapping[str, Any], name: str) -> dict[str, Mapping[str, Any]]:
+    """Table rows of a run summary: the method's results, then the mean-pose floor if present."""
+    rows = {name: summary.get("metrics", {})}
+    if "mean_pose_baseline" in summary:
+        rows[FLOOR_NAME] = summary["mean_pose_baseline"]
+    return rows
