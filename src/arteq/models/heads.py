@@ -9,6 +9,8 @@ import roma
 import torch
 from torch import nn
 
+from arteq.models.precision import full_precision, upcast
+
 
 class ResFC(nn.Module):
     """Residual fully connected block ``x -> x' + fc2(relu(fc1(relu(x))))`` (per point)."""
@@ -153,10 +155,15 @@ class PoseHead(nn.Module):
         for layer in self.attn:
             x = layer(x)
         logits = self.mlp(x).reshape(b, k, a)
-        z = (logits - logits.mean(-1, keepdim=True)) / (logits.std(-1, keepdim=True) + 1e-6)
-        weights = torch.softmax(z * self.log_sharpness.exp(), dim=-1)
-        mean = torch.einsum("bka,aij->bkij", weights, self.group_rotations.to(weights.dtype))
-        rotmats = roma.special_procrustes(mean, gradient_eps=self.gradient_eps)
+        # Statistics, softmax, chordal mean and SVD in float32 at least, also under mixed precision: in
+        # bfloat16 the standardised logits and the mean would carry ~1e-2 errors that the projection
+        # turns into rotation errors and that break equivariance far beyond rounding.
+        with full_precision(logits):
+            logits = upcast(logits)
+            z = (logits - logits.mean(-1, keepdim=True)) / (logits.std(-1, keepdim=True) + 1e-6)
+            weights = torch.softmax(z * self.log_sharpness.exp().to(z.dtype), dim=-1)
+            mean = torch.einsum("bka,aij->bkij", weights, self.group_rotations.to(weights.dtype))
+            rotmats = roma.special_procrustes(mean, gradient_eps=self.gradient_eps)
         return {"weights": weights, "mean": mean, "rotmats": rotmats}
 
 
