@@ -144,6 +144,14 @@ class PoseHead(nn.Module):
     def forward(self, part_feats: torch.Tensor) -> dict[str, torch.Tensor]:
         """``part_feats [B, K, A, C]`` -> ``weights [B, K, A]``, ``mean [B, K, 3, 3]`` (before
         projection) and ``rotmats [B, K, 3, 3]`` (global rotation of each part)."""
+        # The whole head runs in float32 at least, also under mixed precision: which of the 60 group
+        # elements a part's rotation is read from depends on small differences between its 60 tokens,
+        # which bfloat16 products (3 significant digits) would round away, and the attention over the
+        # tokens would no longer be (near-)exactly permutation-equivariant. It is small next to the backbone.
+        with full_precision(part_feats):
+            return self._forward(upcast(part_feats))
+
+    def _forward(self, part_feats: torch.Tensor) -> dict[str, torch.Tensor]:
         b, k, a, _ = part_feats.shape
         x = part_feats
         if self.parent_conditioning:
@@ -155,15 +163,10 @@ class PoseHead(nn.Module):
         for layer in self.attn:
             x = layer(x)
         logits = self.mlp(x).reshape(b, k, a)
-        # Statistics, softmax, chordal mean and SVD in float32 at least, also under mixed precision: in
-        # bfloat16 the standardised logits and the mean would carry ~1e-2 errors that the projection
-        # turns into rotation errors and that break equivariance far beyond rounding.
-        with full_precision(logits):
-            logits = upcast(logits)
-            z = (logits - logits.mean(-1, keepdim=True)) / (logits.std(-1, keepdim=True) + 1e-6)
-            weights = torch.softmax(z * self.log_sharpness.exp().to(z.dtype), dim=-1)
-            mean = torch.einsum("bka,aij->bkij", weights, self.group_rotations.to(weights.dtype))
-            rotmats = roma.special_procrustes(mean, gradient_eps=self.gradient_eps)
+        z = (logits - logits.mean(-1, keepdim=True)) / (logits.std(-1, keepdim=True) + 1e-6)
+        weights = torch.softmax(z * self.log_sharpness.exp(), dim=-1)
+        mean = torch.einsum("bka,aij->bkij", weights, self.group_rotations.to(weights.dtype))
+        rotmats = roma.special_procrustes(mean, gradient_eps=self.gradient_eps)
         return {"weights": weights, "mean": mean, "rotmats": rotmats}
 
 
