@@ -16,7 +16,9 @@ from arteq.data.datamodule import CorruptCacheError, read_cache, write_cache
 
 
 def _dm(root: Path, **kw) -> BodyScanDataModule:
-    args = dict(body_model={"name": "toy"}, num_points=64, train_size=4, val_size=6, test_size=4, batch_size=2)
+    args = dict(
+        body_model={"name": "toy"}, num_points=64, train_size=4, val_size=6, test_size=4, batch_size=2
+    )
     args.update(kw)
     return BodyScanDataModule(cache_root=str(root), **args)
 

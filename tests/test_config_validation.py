@@ -63,7 +63,9 @@ def test_bad_value_names_key_and_allowed_values(override, key, allowed):
 
 
 def test_batch_size_is_per_process_in_ddp():
-    validate_train_config(_cfg("trainer=ddp", "trainer.devices=2", "data.batch_size=200", "data.eval_batch_size=8"))
+    validate_train_config(
+        _cfg("trainer=ddp", "trainer.devices=2", "data.batch_size=200", "data.eval_batch_size=8")
+    )
     with pytest.raises(ConfigError, match=r"data.batch_size=201: allowed: 1..200.*2 processes share"):
         validate_train_config(_cfg("trainer=ddp", "trainer.devices=2", "data.batch_size=201"))
 
