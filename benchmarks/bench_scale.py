@@ -83,27 +83,38 @@ def one_batch(cfg, points: int, batch: int = 1) -> dict[str, torch.Tensor]:
 
 
 def sample_time(cfg, n: int = 4) -> float:
-    """Seconds to generate one training cloud on one CPU thread (what a data worker does)."""
+    """CPU seconds to generate one training cloud on one thread (what a data worker does)."""
     from arteq.training.build import build_datamodule
 
     ds = build_datamodule(cfg).make_dataset("train")
     ds[0]  # warm-up (body model, caches)
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU time: robust to other jobs on a shared machine
     for i in range(1, n + 1):
         ds[i]
-    return (time.perf_counter() - t0) / n
+    return (time.process_time() - t0) / n
 
 
-def measure(config: str, points: int, forward_only: bool) -> dict:
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def measure(config: str, points: int, forward_only: bool, device: str = "cpu") -> dict:
     from arteq.training.build import build_module
 
     torch.manual_seed(0)
+    dev = torch.device(device)
     cfg = compose_cfg(config, points)
-    module = build_module(cfg, stage=2)
-    batch = one_batch(cfg, points)
+    module = build_module(cfg, stage=2).to(dev)
+    batch = {k: v.to(dev) for k, v in one_batch(cfg, points).items()}
     n_params = sum(p.numel() for p in module.net.parameters())
-    row = {"config": config, "points": points, "params": n_params, "threads": torch.get_num_threads()}
-
+    row = {
+        "config": config,
+        "points": points,
+        "params": n_params,
+        "threads": torch.get_num_threads(),
+        "device": "cpu" if dev.type == "cpu" else torch.cuda.get_device_name(dev),
+    }
     with torch.no_grad(), FlopCounterMode(display=False) as flops, PeakTensorMemory() as mem:
         t0 = time.perf_counter()
         module._step(batch, use_gt_parts=False)
@@ -119,18 +130,25 @@ def measure(config: str, points: int, forward_only: bool) -> dict:
         row["train_flops"] = flops.get_total_flops()
         row["train_peak_bytes"] = mem.peak
         module.zero_grad(set_to_none=True)
+        _sync(dev)
         t0, c0 = time.perf_counter(), time.process_time()
         _, _, losses = module._step(batch, use_gt_parts=False)
         losses["loss"].backward()
-        row["train_step_s"] = round(time.perf_counter() - t0, 2)
+        _sync(dev)
+        row["train_step_s"] = round(time.perf_counter() - t0, 3)
         row["train_step_cpu_s"] = round(time.process_time() - c0, 2)  # less sensitive to other jobs
-    row["sample_gen_s"] = round(sample_time(cfg), 4)
     return row
 
 
 # ---------------------------------------------------------------------------------------------- report
 #: Stated GPU assumptions for the estimates (dense peak rates, NVIDIA data sheets).
-GPU = {"name": "H100 SXM 80 GB", "fp32_tflops": 67.0, "tf32_tflops": 495.0, "bf16_tflops": 989.0, "mem_gb": 80}
+GPU = {
+    "name": "H100 SXM 80 GB",
+    "fp32_tflops": 67.0,
+    "tf32_tflops": 495.0,
+    "bf16_tflops": 989.0,
+    "mem_gb": 80,
+}
 UTILISATION = 0.25  # of peak FLOP rate: the model is gather- and memory-bound, far from matmul peak
 PAPER_EPOCH = {"train_size": 4000, "val_size": 128, "batch_size": 8, "num_workers": 8}
 
@@ -139,59 +157,80 @@ def _fmt_bytes(b: float) -> str:
     return f"{b / 2**20:,.0f} MiB" if b < 2**30 else f"{b / 2**30:,.2f} GiB"
 
 
+def _extrapolate(latest: dict, config: str, points: int, fwd: dict) -> tuple[float, float] | None:
+    """Training FLOPs and peak memory of a forward-only row, from the rows of the same config measured
+    in full: FLOPs = forward x the train / forward ratio (constant over N); memory linear in N through
+    the two largest measured N."""
+    same = sorted((n, x) for (c, n), x in latest.items() if c == config and "train_flops" in x)
+    if len(same) < 2:
+        return None
+    ratio = sum(x["train_flops"] / x["fwd_flops"] for _, x in same) / len(same)
+    (n1, x1), (n2, x2) = same[-2:]
+    slope = (x2["train_peak_bytes"] - x1["train_peak_bytes"]) / (n2 - n1)
+    return fwd["fwd_flops"] * ratio, x2["train_peak_bytes"] + slope * (points - n2)
+
+
+def _estimate_text(r: dict, train_f: float, train_mem: float, estimated: bool, gen_s: float | None) -> str:
+    steps = PAPER_EPOCH["train_size"] / PAPER_EPOCH["batch_size"]
+    flops_epoch = train_f * PAPER_EPOCH["train_size"] + r["fwd_flops"] * PAPER_EPOCH["val_size"]
+    fp32, tf32 = GPU["fp32_tflops"], GPU["tf32_tflops"]
+    t_fp32 = flops_epoch / (fp32 * 1e12 * UTILISATION)
+    t_tf32 = flops_epoch / (tf32 * 1e12 * UTILISATION)
+    static = 16 * r["params"]  # fp32 weights + grads + Adam moments
+    largest = math.floor((GPU["mem_gb"] * 1e9 * 0.9 - static) / train_mem)
+    how = " (training FLOPs and memory extrapolated from the forward pass)" if estimated else ""
+    text = (
+        f"Estimates for `+experiment=paper` (5000 points, {PAPER_EPOCH['train_size']} clouds per epoch, "
+        f"batch {PAPER_EPOCH['batch_size']}: {steps:.0f} steps) on one {GPU['name']} at "
+        f"{UTILISATION:.0%} of its peak FLOP rate{how}:\n"
+        f"- compute: {flops_epoch / 1e12:,.1f} TFLOP per epoch -> {t_fp32:,.0f} s per epoch in float32 "
+        f"({fp32:.0f} TFLOP/s peak), {t_tf32:,.0f} s with TF32 matmuls ({tf32:.0f}); "
+        f"15 epochs (3 + 12): {15 * t_fp32 / 60:,.0f} / {15 * t_tf32 / 60:,.0f} min;\n"
+    )
+    if gen_s:
+        rate = PAPER_EPOCH["num_workers"] / gen_s
+        text += (
+            f"- data: {PAPER_EPOCH['num_workers']} workers generate about {rate:,.0f} clouds/s "
+            f"-> {PAPER_EPOCH['train_size'] / rate:,.0f} s per epoch at least;\n"
+        )
+    text += (
+        f"- memory: {_fmt_bytes(train_mem)} per sample in training -> largest batch in {GPU['mem_gb']} GB "
+        f"(90% usable, {_fmt_bytes(static)} of weights, grads and Adam state): about {largest}."
+    )
+    return text
+
+
 def report(rows: list[dict]) -> str:
     latest: dict[tuple[str, int], dict] = {}
+    gen: dict[int, float] = {}
     for r in rows:  # the newest row per (config, points), merging forward-only and full rows
+        if r["config"] == "data":
+            gen[r["points"]] = r["sample_gen_cpu_s"]
+            continue
         key = (r["config"], r["points"])
         latest[key] = {**latest.get(key, {}), **{k: v for k, v in r.items() if v is not None}}
     lines = [
         "| config | points | params | fwd GFLOP | train GFLOP | fwd peak / sample | train peak / sample "
-        "| train step CPU s | cloud gen s (1 thread) |",
+        "| train step CPU s | cloud gen CPU s |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    est = []
+    notes = []
     for (config, points), r in sorted(latest.items()):
-        train_f = r.get("train_flops")
-        train_mem = r.get("train_peak_bytes")
-        ratio_f = ratio_m = None
-        if train_f is None or train_mem is None:  # forward only: scale by the ratios measured at fewer points
-            same = [x for (c, _), x in latest.items() if c == config and "train_flops" in x]
-            if same:
-                ratio_f = sum(x["train_flops"] / x["fwd_flops"] for x in same) / len(same)
-                ratio_m = sum(x["train_peak_bytes"] / x["fwd_peak_bytes"] for x in same) / len(same)
-                train_f, train_mem = r["fwd_flops"] * ratio_f, r["fwd_peak_bytes"] * ratio_m
-        mark = " (est.)" if ratio_f is not None else ""
+        train_f, train_mem = r.get("train_flops"), r.get("train_peak_bytes")
+        estimated = train_f is None and (ext := _extrapolate(latest, config, points, r)) is not None
+        if estimated:
+            train_f, train_mem = ext
+        mark = " (est.)" if estimated else ""
+        train_f_s = "–" if train_f is None else f"{train_f / 1e9:,.1f}{mark}"
+        train_m_s = "–" if train_mem is None else _fmt_bytes(train_mem) + mark
         lines.append(
-            f"| {config} | {points} | {r['params']:,} | {r['fwd_flops'] / 1e9:,.1f} | "
-            f"{'–' if train_f is None else f'{train_f / 1e9:,.1f}{mark}'} | {_fmt_bytes(r['fwd_peak_bytes'])} | "
-            f"{'–' if train_mem is None else _fmt_bytes(train_mem) + mark} | {r.get('train_step_cpu_s', r.get('train_step_s', '–'))} | "
-            f"{r.get('sample_gen_s', '–')} |"
+            f"| {config} | {points} | {r['params']:,} | {r['fwd_flops'] / 1e9:,.1f} | {train_f_s} | "
+            f"{_fmt_bytes(r['fwd_peak_bytes'])} | {train_m_s} | {r.get('train_step_cpu_s', '–')} | "
+            f"{gen.get(points, '–')} |"
         )
         if config == "paper" and points == 5000 and train_f is not None:
-            est.append((r, train_f, train_mem, mark))
-    out = "\n".join(lines)
-    for r, train_f, train_mem, mark in est:
-        steps = PAPER_EPOCH["train_size"] / PAPER_EPOCH["batch_size"]
-        flops_epoch = train_f * PAPER_EPOCH["train_size"] + r["fwd_flops"] * PAPER_EPOCH["val_size"]
-        t_fp32 = flops_epoch / (GPU["fp32_tflops"] * 1e12 * UTILISATION)
-        t_tf32 = flops_epoch / (GPU["tf32_tflops"] * 1e12 * UTILISATION)
-        static = 16 * r["params"]  # fp32 weights + grads + Adam moments
-        largest = math.floor((GPU["mem_gb"] * 1e9 * 0.9 - static) / train_mem)
-        data_rate = PAPER_EPOCH["num_workers"] / r["sample_gen_s"]
-        out += (
-            f"\n\nEstimates for `+experiment=paper` (5000 points, {PAPER_EPOCH['train_size']} clouds per epoch, "
-            f"batch {PAPER_EPOCH['batch_size']}: {steps:.0f} steps) on one {GPU['name']} at "
-            f"{UTILISATION:.0%} of peak FLOP rate{mark and ' (training FLOPs/memory estimated from forward)'}:\n"
-            f"- compute: {flops_epoch / 1e12:,.1f} TFLOP per epoch -> {t_fp32:,.0f} s per epoch in float32 "
-            f"({GPU['fp32_tflops']:.0f} TFLOP/s peak), {t_tf32:,.0f} s with TF32 matmuls "
-            f"({GPU['tf32_tflops']:.0f}); 15 epochs (3 + 12): {15 * t_fp32 / 60:,.0f} / {15 * t_tf32 / 60:,.0f} min;\n"
-            f"- data: {PAPER_EPOCH['num_workers']} workers generate {data_rate:,.0f} clouds/s "
-            f"-> {PAPER_EPOCH['train_size'] / data_rate:,.0f} s per epoch at best (the bound if larger);\n"
-            f"- memory: {_fmt_bytes(train_mem)} per sample in training -> largest batch in "
-            f"{GPU['mem_gb']} GB (90% usable, {_fmt_bytes(static)} of weights, grads and Adam state): "
-            f"about {largest}."
-        )
-    return out
+            notes.append(_estimate_text(r, train_f, train_mem, estimated, gen.get(points)))
+    return "\n".join(lines) + "".join("\n\n" + n for n in notes)
 
 
 def main() -> None:
@@ -201,15 +240,21 @@ def main() -> None:
     ap.add_argument("--forward-only", action="store_true", help="skip backward (paper config at 5000 points)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "bench_scale.jsonl"))
     ap.add_argument("--table", default=None, help="only print the table from this JSON-lines file")
+    ap.add_argument("--device", default="cpu", help="cpu or cuda (FLOPs and memory do not depend on it)")
+    ap.add_argument("--data", action="store_true", help="only time cloud generation (CPU s per cloud)")
     args = ap.parse_args()
     if args.table:
         print(report([json.loads(x) for x in Path(args.table).read_text().splitlines() if x.strip()]))
         return
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    for config in args.configs.split(","):
+    for config in ["data"] if args.data else args.configs.split(","):
         for n in (int(x) for x in args.points.split(",")):
-            row = measure(config, n, args.forward_only)
+            if args.data:
+                gen_s = sample_time(compose_cfg("default", n))
+                row = {"config": "data", "points": n, "sample_gen_cpu_s": round(gen_s, 4)}
+            else:
+                row = measure(config, n, args.forward_only, args.device)
             row["torch"] = torch.__version__
             row["when"] = time.strftime("%Y-%m-%d %H:%M")
             print(json.dumps(row), flush=True)
