@@ -159,3 +159,24 @@ def test_datamodule_resume_state_picks_the_next_sample(tmp_path):
     )  # another batch size: restart the epoch, never skip wrongly
     dm.train_dataloader()
     assert list(dm.train_sampler) == EpochSampler(12).epoch_indices(1)
+
+
+def test_stage2_run_killed_during_its_inner_stage1_resumes_stage1_first(tmp_path):
+    from arteq.train import plan_run
+
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        cfg = compose("train", overrides=["+experiment=stage2", f"paths.output_root={tmp_path}",
+                                          f"paths.output_dir={tmp_path / 'new'}", "resume=auto"])  # fmt: skip
+    run = tmp_path / "stage2" / "2026-01-01_00-00-00_000000"
+    (run / "stage1" / "checkpoints").mkdir(parents=True)
+    torch.save({"global_step": 7}, run / "stage1" / "checkpoints" / "step0000007.ckpt")
+    torch.save({"global_step": 5}, run / "stage1" / "checkpoints" / "epoch00.ckpt")
+    plan = plan_run(cfg)
+    assert plan["output_dir"] == str(run) and plan["stage1"]["how"] == "train"
+    assert plan["resume"] == {"1": str(run / "stage1" / "checkpoints" / "step0000007.ckpt")}
+    # once stage 2 has a checkpoint of its own, that one is resumed and stage 1 is not touched again
+    (run / "checkpoints").mkdir()
+    torch.save({"global_step": 3}, run / "checkpoints" / "step0000003.ckpt")
+    plan = plan_run(cfg)
+    assert plan["resume"] == {"2": str(run / "checkpoints" / "step0000003.ckpt")}
+    assert plan["stage1"]["ckpt"] is None
