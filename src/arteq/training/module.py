@@ -203,7 +203,7 @@ class ArtEqModule(L.LightningModule):
         # Every rank computes every split that was run (even one whose shard of the set was empty):
         # compute() gathers the metric states of all ranks, so all of them must take part.
         loaders = self.trainer.test_dataloaders if self._trainer is not None else None
-        n_run = len(loaders) if isinstance(loaders, list | tuple) else len(TEST_SPLITS)
+        n_run = len(loaders) if isinstance(loaders, list | tuple) else 1
         for split, metric in list(zip(TEST_SPLITS, self.test_metrics))[:n_run]:
             self._log_metrics(split, metric)
 
