@@ -72,7 +72,8 @@ def evaluate_mean_pose(cfg: DictConfig, train_samples: int = 256) -> dict[str, d
     dm.setup("test")
     out: dict[str, dict[str, float]] = {}
     for split, loader in zip(TEST_SPLITS, dm.test_dataloader()):
-        metric = BodyFitMetrics()
+        # this process's own evaluation (run on rank 0 only in a distributed run): no cross-rank sync
+        metric = BodyFitMetrics(sync_on_compute=False)
         for batch in loader:
             b = batch["points"].shape[0]
             gt = module.ground_truth(batch)
@@ -126,10 +127,17 @@ def write_metrics(summary: dict[str, Any], output_dir: Path) -> None:
 
 
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
-    """Load ``cfg.ckpt_path`` and evaluate it on the configured test sets."""
+    """Load ``cfg.ckpt_path`` and evaluate it on the configured test sets.
+
+    Works on several processes too (``+trainer.strategy=ddp trainer.devices=N``): each rank tests its
+    shard of the sets, metrics are summed over ranks, and rank 0 alone writes the files.
+    """
+    from arteq.training.validate import validate_eval_config
+
     ckpt = Path(cfg.ckpt_path)
     if not ckpt.is_file():
         raise FileNotFoundError(f"ckpt_path={ckpt}: no such checkpoint file")
+    validate_eval_config(cfg)
     module = ArtEqModule.load_from_checkpoint(str(ckpt), map_location="cpu", weights_only=True)
     cfg.body_model = OmegaConf.create(module.hparams.body_model)
     from arteq.training.build import build_datamodule
@@ -139,13 +147,18 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     metrics = test_module(module, datamodule, trainer)
     out_dir = Path(cfg.output_dir) if cfg.get("output_dir") else ckpt.parent.parent
     summary = {"task_name": f"eval {ckpt}", "ckpt_path": str(ckpt), "metrics": metrics}
-    write_metrics(summary, out_dir)
+    if trainer.is_global_zero:
+        write_metrics(summary, out_dir)
+    trainer.strategy.barrier("arteq.eval: metrics written")
     return summary
 
 
 @hydra.main(version_base="1.3", config_path="../../conf", config_name="eval")
 def main(cfg: DictConfig) -> None:
-    evaluate(cfg)
+    from arteq.training.validate import exit_on_config_error
+
+    with exit_on_config_error("arteq.eval"):
+        evaluate(cfg)
 
 
 if __name__ == "__main__":

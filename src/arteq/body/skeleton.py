@@ -6,6 +6,8 @@ Order and parent table are SMPL's first 22 joints (pelvis .. wrists). SMPL's han
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 JOINT_NAMES: tuple[str, ...] = (
@@ -56,10 +58,17 @@ def global_to_local(global_rotmats: torch.Tensor, parents: tuple[int, ...] = PAR
     Returns:
         ``[..., K, 3, 3]`` local rotations.
     """
-    par = torch.tensor([p if p >= 0 else 0 for p in parents], device=global_rotmats.device)
+    par = _parent_index(tuple(parents), global_rotmats.device)
     parent_rot = global_rotmats[..., par, :, :]
     local = parent_rot.transpose(-1, -2) @ global_rotmats
     return torch.cat([global_rotmats[..., :1, :, :], local[..., 1:, :, :]], dim=-3)
+
+
+@functools.lru_cache(maxsize=16)
+def _parent_index(parents: tuple[int, ...], device: torch.device) -> torch.Tensor:
+    """Parent index tensor on ``device``, built once: a fresh host-to-GPU copy on every call would make
+    the training step wait for the GPU (a blocking copy synchronises the stream)."""
+    return torch.tensor([p if p >= 0 else 0 for p in parents], device=device)
 
 
 def local_to_global(local_rotmats: torch.Tensor, parents: tuple[int, ...] = PARENTS) -> torch.Tensor:

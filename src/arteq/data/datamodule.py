@@ -5,8 +5,18 @@
   held-out motions). ``test_ood``: fixed OOD set (synthetic extremes, or AMASS MPI_Limits), always with a
   random root orientation.
 - Fixed sets are generated once and cached under ``arteq.paths.cache_dir("datasets")``, keyed by a hash of
-  everything that defines them (source, body, sizes, sampling, seed), written atomically with
-  ``torch.save`` of plain tensors and read with ``torch.load(weights_only=True)``.
+  everything that defines them (source, body, sizes, sampling, seed). A cache file holds plain tensors
+  plus their SHA-256 and sample count (read with ``torch.load(weights_only=True)``); a file that is
+  truncated, corrupted or foreign is detected, removed and regenerated with a warning, never used.
+  Files are written to a temporary name and renamed (atomic), under a lock file, so concurrent runs
+  creating the same set cannot corrupt it (the second one waits, then loads what the first wrote).
+- Distributed runs (``trainer=ddp``): Lightning's distributed sampler is off (``use_distributed_sampler:
+  false``); the training stream is sharded by :class:`EpochSampler` (disjoint samples per rank), the
+  fixed sets by :class:`ShardSampler` (no padding, no duplicates). Caches are created by local rank 0 in
+  ``prepare_data`` while the other ranks wait.
+- Resume: the position in the training stream (epoch and batches done) is saved in checkpoints through
+  ``state_dict`` and restored by ``load_state_dict``; a run resumed mid-epoch continues with exactly the
+  samples an uninterrupted run would have seen next.
 """
 
 from __future__ import annotations
@@ -23,13 +33,79 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from arteq.data.dataset import AUGMENTS, SAMPLE_KEYS, BodyScanDataset, EpochSampler, TensorDictDataset
+from arteq.data.dataset import (
+    AUGMENTS,
+    SAMPLE_KEYS,
+    BodyScanDataset,
+    EpochSampler,
+    ShardSampler,
+    TensorDictDataset,
+)
 from arteq.data.poses import PoseSource, SyntheticIDPoses, SyntheticOODPoses
 from arteq.paths import cache_dir
 
 log = logging.getLogger(__name__)
-CACHE_VERSION = 1
+CACHE_VERSION = 2
+CACHE_FORMAT = "arteq-fixed-set"
 EVAL_SPLITS = ("val", "test_id", "test_ood")
+
+
+class CorruptCacheError(RuntimeError):
+    """A cached fixed set failed its checks (unreadable, truncated, wrong checksum or contents)."""
+
+
+def tensors_digest(tensors: Mapping[str, torch.Tensor]) -> str:
+    """SHA-256 over the sample tensors (key, dtype, shape and bytes, in ``SAMPLE_KEYS`` order)."""
+    h = hashlib.sha256()
+    for k in SAMPLE_KEYS:
+        t = tensors[k].detach().cpu().contiguous()
+        h.update(f"{k}|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.numpy().tobytes())
+    return h.hexdigest()
+
+
+def write_cache(path: Path, tensors: Mapping[str, torch.Tensor], split: str) -> None:
+    """Write a fixed set with its checksum: temporary file in the same folder, then atomic rename."""
+    payload = {
+        "format": CACHE_FORMAT,
+        "version": CACHE_VERSION,
+        "split": split,
+        "count": int(tensors["points"].shape[0]),
+        "sha256": tensors_digest(tensors),
+        "tensors": {k: tensors[k].contiguous() for k in SAMPLE_KEYS},
+    }
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{os.urandom(4).hex()}.tmp")
+    try:
+        torch.save(payload, tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def read_cache(path: Path, split: str | None = None) -> dict[str, torch.Tensor]:
+    """Load and verify a cache file written by :func:`write_cache`; raises :class:`CorruptCacheError`."""
+    size = path.stat().st_size
+    if size == 0:
+        raise CorruptCacheError("empty file")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # truncated zip, bad pickle, foreign file...
+        raise CorruptCacheError(f"unreadable ({type(e).__name__}: {str(e).splitlines()[0][:120]})") from e
+    if not isinstance(payload, dict) or payload.get("format") != CACHE_FORMAT:
+        raise CorruptCacheError("not an arteq fixed-set file")
+    if payload.get("version") != CACHE_VERSION:
+        raise CorruptCacheError(f"format version {payload.get('version')}, expected {CACHE_VERSION}")
+    if split is not None and payload.get("split") != split:
+        raise CorruptCacheError(f"holds split {payload.get('split')!r}, expected {split!r}")
+    tensors = payload.get("tensors")
+    if not isinstance(tensors, dict) or any(k not in tensors for k in SAMPLE_KEYS):
+        raise CorruptCacheError("missing sample tensors")
+    counts = {int(tensors[k].shape[0]) for k in SAMPLE_KEYS}
+    if counts != {payload.get("count")}:
+        raise CorruptCacheError(f"sample count {sorted(counts)} != recorded {payload.get('count')}")
+    if tensors_digest(tensors) != payload.get("sha256"):
+        raise CorruptCacheError("checksum mismatch (contents changed after writing)")
+    return {k: tensors[k] for k in SAMPLE_KEYS}
 
 
 def build_body(body_model: Any) -> torch.nn.Module:
@@ -160,6 +236,10 @@ class BodyScanDataModule(L.LightningDataModule):
         self._body: torch.nn.Module | None = None
         self.datasets: dict[str, Dataset] = {}
         self.generated: list[str] = []  # fixed sets generated (not loaded from cache) by this instance
+        self.train_sampler: EpochSampler | None = None
+        self._resume_state: dict[str, int] | None = None
+        # a rank may get no sample of a tiny fixed set (size < processes): that is fine here
+        self.allow_zero_length_dataloader_with_multiple_devices = True
 
     # ------------------------------------------------------------------ body and sources
     @property
@@ -234,6 +314,18 @@ class BodyScanDataModule(L.LightningDataModule):
             parts.append(batch)
         return {k: torch.cat([p[k] for p in parts]) for k in SAMPLE_KEYS}
 
+    def _load_checked(self, path: Path, split: str, remove_bad: bool) -> dict[str, torch.Tensor] | None:
+        if not path.is_file():
+            return None
+        try:
+            return read_cache(path, split)
+        except CorruptCacheError as e:
+            if not remove_bad:
+                return None
+            log.warning("cached %s set %s is corrupt (%s): removed, regenerating", split, path, e)
+            path.unlink(missing_ok=True)
+            return None
+
     def fixed_set(self, split: str) -> TensorDictDataset:
         """Load the cached fixed set of ``split`` (``val``, ``test_id``, ``test_ood``) or generate it."""
         if split not in EVAL_SPLITS:
@@ -243,31 +335,55 @@ class BodyScanDataModule(L.LightningDataModule):
             self.generated.append(split)
             return TensorDictDataset(self._generate(ds))
         path = self.cache_path(split, ds)
-        if path.is_file():
-            try:
-                return TensorDictDataset(torch.load(path, map_location="cpu", weights_only=True))
-            except Exception as e:  # a corrupt or foreign file: regenerate rather than fail
-                log.warning("cached set %s unreadable (%s); regenerating", path, e)
-        tensors = self._generate(ds)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        torch.save(tensors, tmp)
-        os.replace(tmp, path)
-        self.generated.append(split)
-        log.info("cached %s set (%d scans) at %s", split, ds.size, path)
+        tensors = self._load_checked(path, split, remove_bad=False)  # fast path: no lock
+        if tensors is None:
+            from filelock import FileLock
+
+            # One creator at a time; a waiting run loads what the first one wrote. Bad files are
+            # removed only under the lock (never a file another run has just replaced).
+            with FileLock(str(path) + ".lock"):
+                tensors = self._load_checked(path, split, remove_bad=True)
+                if tensors is None:
+                    tensors = self._generate(ds)
+                    write_cache(path, tensors, split)
+                    self.generated.append(split)
+                    log.info("cached %s set (%d scans) at %s", split, ds.size, path)
         return TensorDictDataset(tensors)
 
     # ------------------------------------------------------------------ Lightning hooks
-    def setup(self, stage: str | None = None) -> None:
-        want = {
-            "fit": ("train", "val"),
+    def _fixed_splits_for(self, stage: str | None) -> tuple[str, ...]:
+        return {
+            "fit": ("val",),
             "validate": ("val",),
             "test": ("test_id", "test_ood"),
             "predict": ("test_id", "test_ood"),
-        }.get(stage or "", ("train", "val", "test_id", "test_ood"))
+        }.get(stage or "", EVAL_SPLITS)
+
+    def prepare_data(self) -> None:
+        """Create the cache files the coming stage needs (Lightning runs this on local rank 0 only, the
+        other ranks wait; their ``setup`` then loads the files)."""
+        if not self.cache:
+            return
+        fn = self.trainer.state.fn if self.trainer is not None else None
+        stage = fn.value if fn is not None else None
+        for split in self._fixed_splits_for(stage):
+            if split not in self.datasets:
+                self.datasets[split] = self.fixed_set(split)
+
+    def setup(self, stage: str | None = None) -> None:
+        want = ("train", "val") if stage == "fit" else self._fixed_splits_for(stage)
+        if stage is None:
+            want = ("train", *EVAL_SPLITS)
         for split in want:
             if split in self.datasets:
                 continue
             self.datasets[split] = self.make_dataset(split) if split == "train" else self.fixed_set(split)
+
+    def _rank_world(self) -> tuple[int, int]:
+        trainer = self.trainer
+        if trainer is None:
+            return 0, 1
+        return int(trainer.global_rank), int(trainer.world_size)
 
     def _loader(self, ds: Dataset, batch_size: int, sampler=None) -> DataLoader:
         return DataLoader(
@@ -285,13 +401,55 @@ class BodyScanDataModule(L.LightningDataModule):
             self.setup({"train": "fit", "val": "validate"}.get(split, "test"))
         return self.datasets[split]
 
+    def _eval_loader(self, split: str) -> DataLoader:
+        ds = self._get(split)
+        rank, world = self._rank_world()
+        sampler = ShardSampler(len(ds), rank, world) if world > 1 else None
+        return self._loader(ds, self.eval_batch_size, sampler)
+
     def train_dataloader(self) -> DataLoader:
         ds = self._get("train")
-        return self._loader(ds, self.batch_size, EpochSampler(len(ds), seed=self.seed))
+        rank, world = self._rank_world()
+        sampler = EpochSampler(len(ds), seed=self.seed, rank=rank, world_size=world)
+        if self._resume_state is not None:
+            st = self._resume_state
+            if (st.get("world_size"), st.get("batch_size")) != (world, self.batch_size):
+                log.warning(
+                    "resuming with %d process(es) x batch %d, the checkpoint was saved with %s x %s: the "
+                    "training stream restarts at the beginning of epoch %d",
+                    world, self.batch_size, st.get("world_size"), st.get("batch_size"), st["epoch"],
+                )  # fmt: skip
+                sampler.resume(st["epoch"], 0)
+            elif st["batches_done"] >= st["batches_in_epoch"]:  # saved at the end of an epoch
+                sampler.resume(st["epoch"] + 1, 0)
+            else:
+                sampler.resume(st["epoch"], min(st["batches_done"] * self.batch_size, sampler.per_rank))
+            self._resume_state = None
+        self.train_sampler = sampler
+        return self._loader(ds, self.batch_size, sampler)
 
     def val_dataloader(self) -> DataLoader:
-        return self._loader(self._get("val"), self.eval_batch_size)
+        return self._eval_loader("val")
 
     def test_dataloader(self) -> list[DataLoader]:
         """``[test_id, test_ood]`` (the order of ``arteq.training.module.TEST_SPLITS``)."""
-        return [self._loader(self._get(s), self.eval_batch_size) for s in ("test_id", "test_ood")]
+        return [self._eval_loader(s) for s in ("test_id", "test_ood")]
+
+    # ------------------------------------------------------------------ resume
+    def state_dict(self) -> dict[str, Any]:
+        """Position in the training stream, saved in every checkpoint (see module docstring)."""
+        trainer = self.trainer
+        s = self.train_sampler
+        if trainer is None or s is None or s.active_epoch is None:
+            return {}
+        done = int(trainer.fit_loop.epoch_loop.batch_progress.current.ready)
+        return {
+            "epoch": int(s.active_epoch),
+            "batches_done": done,
+            "batches_in_epoch": int(trainer.num_training_batches),
+            "batch_size": int(self.batch_size),
+            "world_size": int(s.world_size),
+        }
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self._resume_state = dict(state_dict) if state_dict else None

@@ -184,29 +184,71 @@ class TensorDictDataset(Dataset):
 
 
 class EpochSampler(Sampler[int]):
-    """Yields ``epoch * size + perm(i)``: a fresh set of sample indices every epoch (train split).
+    """Training indices ``epoch * size + perm_epoch(i)``: fresh samples every epoch, sharded over ranks.
 
-    The epoch counter advances on each ``__iter__`` (the sampler runs in the main process, so this
-    works with persistent workers); ``set_epoch`` pins it (e.g. on resume).
+    Each epoch draws one permutation of ``range(size)`` seeded by ``(seed, epoch)``; process ``rank`` of
+    ``world_size`` takes every ``world_size``-th entry of it from ``rank`` (``size // world_size`` per rank,
+    the remainder is dropped so that every rank runs the same number of steps). Since a sample is drawn
+    from ``(seed, split, index)``, the ranks see disjoint samples, every epoch different ones, and the
+    stream is deterministic (independent of workers, and the union over ranks is the 1-process epoch).
+
+    Epoch bookkeeping: an iteration uses ``self.epoch`` and then advances it (so a plain loop over the
+    loader gets a new epoch each time); ``set_epoch`` pins the next iteration's epoch (Lightning calls
+    it every epoch) and ``resume(epoch, skip)`` additionally skips the first ``skip`` indices of that
+    epoch's shard once (mid-epoch resume: the skipped samples are never generated).
     """
 
-    def __init__(self, size: int, seed: int = 0, shuffle: bool = True) -> None:
+    def __init__(self, size: int, seed: int = 0, shuffle: bool = True, rank: int = 0, world_size: int = 1):
+        if not 0 <= rank < world_size:
+            raise ValueError(f"EpochSampler: rank must be in [0, {world_size}), got {rank}")
         self.size, self.seed, self.shuffle = size, seed, shuffle
+        self.rank, self.world_size = int(rank), int(world_size)
+        self.per_rank = size // self.world_size
+        if self.per_rank < 1:
+            raise ValueError(f"EpochSampler: {size} samples cannot be shared by {world_size} processes")
         self.epoch = 0
+        self.skip = 0
+        self.active_epoch: int | None = None  # epoch of the iteration in progress (or last started)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
 
+    def resume(self, epoch: int, skip: int) -> None:
+        """The next iteration is epoch ``epoch`` without its first ``skip`` indices (of this rank's shard)."""
+        if not 0 <= skip <= self.per_rank:
+            raise ValueError(f"EpochSampler.resume: skip must be in [0, {self.per_rank}], got {skip}")
+        self.epoch, self.skip = int(epoch), int(skip)
+
     def __len__(self) -> int:
-        return self.size
+        return self.per_rank
+
+    def epoch_indices(self, epoch: int) -> list[int]:
+        """This rank's full index list of ``epoch`` (what an iteration of that epoch yields)."""
+        if self.shuffle:
+            order = torch.randperm(self.size, generator=seeded_generator(self.seed, "epoch", epoch))
+        else:
+            order = torch.arange(self.size)
+        mine = order[self.rank :: self.world_size][: self.per_rank]
+        return [epoch * self.size + int(i) for i in mine]
 
     def __iter__(self):
-        e = self.epoch
-        self.epoch += 1
-        order = (
-            torch.randperm(self.size, generator=seeded_generator(self.seed, "epoch", e))
-            if self.shuffle
-            else None
-        )
-        for i in range(self.size):
-            yield e * self.size + (int(order[i]) if order is not None else i)
+        e, skip = self.epoch, self.skip
+        self.epoch, self.skip = e + 1, 0
+        self.active_epoch = e
+        yield from self.epoch_indices(e)[skip:]
+
+
+class ShardSampler(Sampler[int]):
+    """Indices ``rank, rank + world_size, ...`` of a fixed set: each sample on exactly one rank, no padding
+    and no duplicates (unlike ``DistributedSampler``), so metrics summed over ranks equal 1-process ones."""
+
+    def __init__(self, size: int, rank: int = 0, world_size: int = 1) -> None:
+        if not 0 <= rank < world_size:
+            raise ValueError(f"ShardSampler: rank must be in [0, {world_size}), got {rank}")
+        self.size, self.rank, self.world_size = size, rank, world_size
+
+    def __len__(self) -> int:
+        return len(range(self.rank, self.size, self.world_size))
+
+    def __iter__(self):
+        return iter(range(self.rank, self.size, self.world_size))

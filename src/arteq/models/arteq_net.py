@@ -11,6 +11,7 @@ from torch import nn
 from arteq.body.skeleton import NUM_JOINTS, PARENTS, global_to_local
 from arteq.equivariant import EquivariantBackbone, group_rotations
 from arteq.models.heads import PartSegmenter, PoseHead, ShapeHead, pool_parts
+from arteq.models.precision import full_precision, upcast
 
 
 class ArtEqNet(nn.Module):
@@ -72,7 +73,8 @@ class ArtEqNet(nn.Module):
             raise ValueError("points: empty cloud (N = 0)")
         feats = self.backbone(points)  # [B, N, A, C]
         seg_logits = self.segmenter(feats.mean(dim=2))
-        part_probs = torch.softmax(seg_logits, dim=-1)
+        # probabilities in float32 at least (under mixed precision the logits may be bfloat16)
+        part_probs = torch.softmax(seg_logits, dim=-1, dtype=upcast(seg_logits).dtype)
         if gt_labels is not None:
             pool_weights = F.one_hot(gt_labels, self.num_parts).to(feats.dtype)
         else:
@@ -80,6 +82,8 @@ class ArtEqNet(nn.Module):
         part_feats = pool_parts(feats, pool_weights)  # [B, K, A, C]
         pose = self.pose_head(part_feats)
         betas = self.shape_head(part_feats.mean(dim=2))
+        with full_precision(points):  # relative rotations between parts: no bfloat16 products
+            local_rotmats = global_to_local(pose["rotmats"])
         return {
             "seg_logits": seg_logits,
             "part_probs": part_probs,
@@ -87,6 +91,6 @@ class ArtEqNet(nn.Module):
             "global_rotmats": pose["rotmats"],
             "rot_mean": pose["mean"],
             "rot_weights": pose["weights"],
-            "local_rotmats": global_to_local(pose["rotmats"]),
+            "local_rotmats": local_rotmats,
             "betas": betas,
         }

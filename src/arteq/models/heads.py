@@ -9,6 +9,8 @@ import roma
 import torch
 from torch import nn
 
+from arteq.models.precision import full_precision, upcast
+
 
 class ResFC(nn.Module):
     """Residual fully connected block ``x -> x' + fc2(relu(fc1(relu(x))))`` (per point)."""
@@ -142,6 +144,14 @@ class PoseHead(nn.Module):
     def forward(self, part_feats: torch.Tensor) -> dict[str, torch.Tensor]:
         """``part_feats [B, K, A, C]`` -> ``weights [B, K, A]``, ``mean [B, K, 3, 3]`` (before
         projection) and ``rotmats [B, K, 3, 3]`` (global rotation of each part)."""
+        # The whole head runs in float32 at least, also under mixed precision: which of the 60 group
+        # elements a part's rotation is read from depends on small differences between its 60 tokens,
+        # which bfloat16 products (3 significant digits) would round away, and the attention over the
+        # tokens would no longer be (near-)exactly permutation-equivariant. It is small next to the backbone.
+        with full_precision(part_feats):
+            return self._forward(upcast(part_feats))
+
+    def _forward(self, part_feats: torch.Tensor) -> dict[str, torch.Tensor]:
         b, k, a, _ = part_feats.shape
         x = part_feats
         if self.parent_conditioning:

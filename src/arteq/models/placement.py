@@ -13,6 +13,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from arteq.models.precision import full_precision, upcast
+
 
 def vertex_areas(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """Per-vertex area (a third of each incident triangle's area).
@@ -51,7 +53,10 @@ def estimate_translation(
     Returns:
         ``[B, 3]`` translation to add to ``vertices``.
     """
-    mesh_centroids = torch.einsum("vk,bvc->bkc", centroid_matrix.to(vertices.dtype), vertices)
-    share = part_weights.sum(dim=1)  # [B, K]
-    share = share / share.sum(dim=-1, keepdim=True).clamp_min(1e-12)
-    return points.mean(dim=1) - torch.einsum("bk,bkc->bc", share, mesh_centroids)
+    with full_precision(vertices):  # float32 at least, also under mixed precision (millimetres matter)
+        vertices, points, part_weights = upcast(vertices), upcast(points), upcast(part_weights)
+        dtype = torch.promote_types(vertices.dtype, points.dtype)
+        mesh_centroids = torch.einsum("vk,bvc->bkc", centroid_matrix.to(dtype), vertices.to(dtype))
+        share = part_weights.to(dtype).sum(dim=1)  # [B, K]
+        share = share / share.sum(dim=-1, keepdim=True).clamp_min(1e-12)
+        return points.to(dtype).mean(dim=1) - torch.einsum("bk,bkc->bc", share, mesh_centroids)

@@ -12,6 +12,7 @@ import torch
 from arteq.body import load_body_model
 from arteq.models.arteq_net import ArtEqNet
 from arteq.models.placement import estimate_translation, part_centroid_matrix, vertex_areas
+from arteq.models.precision import full_precision, upcast
 from arteq.training.losses import DEFAULT_WEIGHTS, arteq_losses
 from arteq.training.metrics import BodyFitMetrics
 
@@ -142,16 +143,17 @@ class ArtEqModule(L.LightningModule):
         of the fitted body, in the frame of ``points``.
         """
         pred = self.net(points, gt_labels=gt_labels)
-        body = self.body(betas=pred["betas"], pose=pred["local_rotmats"])
-        transl = estimate_translation(body.vertices, self.centroid_matrix, points, pred["pool_weights"])
-        pred["vertices"] = body.vertices + transl[:, None]
-        pred["joints"] = body.joints + transl[:, None]
+        with full_precision(points):  # the body model (LBS) and placement in float32 at least
+            body = self.body(betas=upcast(pred["betas"]), pose=upcast(pred["local_rotmats"]))
+            transl = estimate_translation(body.vertices, self.centroid_matrix, points, pred["pool_weights"])
+            pred["vertices"] = body.vertices + transl[:, None]
+            pred["joints"] = body.joints + transl[:, None]
         pred["transl"] = transl
         return pred
 
     def ground_truth(self, batch: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """Ground-truth mesh and joints (in the batch's centred frame) from its body parameters."""
-        with torch.no_grad():
+        with torch.no_grad(), full_precision(batch["points"]):
             body = self.body(betas=batch["betas"], pose=batch["pose"], transl=batch["transl"])
         return {**batch, "vertices": body.vertices, "joints": body.joints}
 
@@ -159,7 +161,9 @@ class ArtEqModule(L.LightningModule):
     def _step(self, batch: Mapping[str, torch.Tensor], use_gt_parts: bool):
         gt = self.ground_truth(batch)
         pred = self(batch["points"], gt_labels=batch["labels"] if use_gt_parts else None)
-        losses = arteq_losses(pred, gt, self.hparams.loss_weights, self.vertex_weights)
+        with full_precision(batch["points"]):  # losses in float32 at least, also under mixed precision
+            pred32 = {k: upcast(v) for k, v in pred.items()}
+            losses = arteq_losses(pred32, gt, self.hparams.loss_weights, self.vertex_weights)
         return pred, gt, losses
 
     def training_step(self, batch, batch_idx):
@@ -196,19 +200,27 @@ class ArtEqModule(L.LightningModule):
         self._update(self.test_metrics[dataloader_idx], pred, gt)
 
     def on_test_epoch_end(self):
-        for split, metric in zip(TEST_SPLITS, self.test_metrics):
-            if metric.update_called:
-                self._log_metrics(split, metric)
+        # Every rank computes every split that was run (even one whose shard of the set was empty):
+        # compute() gathers the metric states of all ranks, so all of them must take part.
+        loaders = self.trainer.test_dataloaders if self._trainer is not None else None
+        n_run = len(loaders) if isinstance(loaders, list | tuple) else 1
+        for split, metric in list(zip(TEST_SPLITS, self.test_metrics))[:n_run]:
+            self._log_metrics(split, metric)
 
     def _log_metrics(self, split: str, metric: BodyFitMetrics, prog_bar: bool = False) -> None:
+        # compute() sums the metric states over all ranks (torchmetrics), so every rank holds the same
+        # values; sync_dist with "max" only tells Lightning so, and leaves the values bit for bit as they are.
         values = metric.compute()
         per_part = values.pop("rot_err_deg_per_part")
         for k, v in values.items():
-            self.log(f"{split}/{k}", v.float(), prog_bar=prog_bar and k in ("v2v_cm", "part_acc"))
+            self.log(
+                f"{split}/{k}", v.float(), prog_bar=prog_bar and k in ("v2v_cm", "part_acc"),
+                sync_dist=True, reduce_fx="max",
+            )  # fmt: skip
         from arteq.body.skeleton import JOINT_NAMES
 
         for name, v in zip(JOINT_NAMES, per_part):
-            self.log(f"{split}_rot_per_part/{name}", v.float())
+            self.log(f"{split}_rot_per_part/{name}", v.float(), sync_dist=True, reduce_fx="max")
         metric.reset()
 
     # ------------------------------------------------------------------ optimisation

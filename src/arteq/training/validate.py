@@ -1,0 +1,287 @@
+"""Start-up checks of a composed config: a bad value fails before anything is built or trained.
+
+Each problem raises :class:`ConfigError` with one line naming the key, the value given and the values
+allowed, e.g. ``data.num_points=0: allowed: an integer >= 1 (the paper uses 5000)``. The entry points
+(``python -m arteq.train`` / ``arteq.eval``) print that line and exit with status 2 instead of a traceback.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf.errors import MissingMandatoryValue
+
+#: Values of ``trainer.precision`` (Lightning's names).
+PRECISIONS = (
+    "32-true",
+    "32",
+    "64-true",
+    "64",
+    "16-mixed",
+    "bf16-mixed",
+    "16-true",
+    "bf16-true",
+    "16",
+    "bf16",
+)
+ARCHS = ("arteq", "pointnet2")
+BODY_MODELS = ("anny22", "smpl", "smplh", "smpl-h")
+OPTIMIZERS = ("adam", "adamw")
+SCHEDULERS = ("none", "cosine", "step")
+AUGMENTS = ("none", "so3", "z")  # arteq.data.dataset.AUGMENTS (not imported: keep this module light)
+_MISSING = object()
+
+
+class ConfigError(ValueError):
+    """An invalid configuration value. ``key``: dotted config key; the message is a single line."""
+
+    def __init__(self, key: str, value: Any, allowed: str) -> None:
+        shown = "(not set)" if value is _MISSING else repr(value) if isinstance(value, str) else value
+        super().__init__(f"{key}={shown}: allowed: {allowed}")
+        self.key, self.value, self.allowed = key, value, allowed
+
+
+class ConfigPathError(ConfigError, FileNotFoundError):
+    """A configured file or folder that does not exist (also a ``FileNotFoundError``)."""
+
+
+def _get(cfg: DictConfig, key: str, default: Any = None) -> Any:
+    try:
+        value = OmegaConf.select(cfg, key, default=default, throw_on_missing=True)
+    except MissingMandatoryValue:
+        return _MISSING
+    if isinstance(value, DictConfig | ListConfig):
+        return OmegaConf.to_container(value, resolve=True)
+    return value
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _int_at_least(cfg: DictConfig, key: str, low: int, allow_none: bool = False, hint: str = "") -> Any:
+    v = _get(cfg, key)
+    if v is None and allow_none:
+        return None
+    if not _is_int(v) or v < low:
+        extra = " or null" if allow_none else ""
+        raise ConfigError(key, v, f"an integer >= {low}{extra}{hint}")
+    return v
+
+
+def _one_of(cfg: DictConfig, key: str, options: Iterable[str], default: Any = None) -> Any:
+    v = _get(cfg, key, default)
+    options = tuple(options)
+    if v not in options:
+        raise ConfigError(key, v, " | ".join(options))
+    return v
+
+
+def _positive_float(cfg: DictConfig, key: str, hint: str = "") -> float:
+    v = _get(cfg, key)
+    ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+    if not ok:
+        raise ConfigError(key, v, f"a finite number > 0{hint}")
+    return float(v)
+
+
+def _existing_path(cfg: DictConfig, key: str, what: str, folder_ok: bool = False) -> None:
+    v = _get(cfg, key)
+    if v is None:
+        return
+    if v is _MISSING or str(v) in ("", "???"):
+        raise ConfigError(key, _MISSING, what)
+    p = Path(str(v)).expanduser()
+    if not (p.is_file() or (folder_ok and p.is_dir())):
+        raise ConfigPathError(key, str(v), f"{what} (no such {'file or folder' if folder_ok else 'file'})")
+
+
+def world_size(cfg: DictConfig) -> int | None:
+    """Processes a run will use (``trainer.devices * trainer.num_nodes``), or None if not known up front."""
+    devices = _get(cfg, "trainer.devices", 1)
+    nodes = _get(cfg, "trainer.num_nodes", 1) or 1
+    if isinstance(devices, list):
+        devices = len(devices)
+    if isinstance(devices, str) and devices.isdigit():
+        devices = int(devices)
+    if not _is_int(devices) or devices < 1 or not _is_int(nodes):
+        return None
+    return devices * nodes
+
+
+def validate_body_model(cfg: DictConfig) -> None:
+    name = str(_one_of(cfg, "body_model.name", BODY_MODELS)).lower()
+    path = _get(cfg, "body_model.model_path")
+    if name != "anny22" and (path is None or path is _MISSING):
+        raise ConfigError(
+            "body_model.model_path",
+            _MISSING,
+            f"the licensed {name.upper()} model file or folder (.pkl / .npz)",
+        )
+    _existing_path(
+        cfg,
+        "body_model.model_path",
+        "null (the cached anny22 build)" if name == "anny22" else "an existing model file or folder",
+        folder_ok=name != "anny22",
+    )
+    _int_at_least(cfg, "body_model.num_betas", 1)
+
+
+def validate_data(cfg: DictConfig, processes: int | None = None) -> None:
+    source = _one_of(cfg, "data.source", ("synthetic", "amass"))
+    if source == "amass":
+        _existing_path(cfg, "data.amass_root", "the AMASS folder (holding DFaust_67/ and MPI_Limits/)", True)
+        if _get(cfg, "data.amass_root") is None:
+            raise ConfigError(
+                "data.amass_root", None, "the AMASS folder (holding DFaust_67/ and MPI_Limits/)"
+            )
+    _int_at_least(cfg, "data.num_points", 1, hint=" (500..5000 in the paper's study; 5000 = paper)")
+    noise = _get(cfg, "data.noise_std")
+    if not (isinstance(noise, int | float) and math.isfinite(noise) and 0 <= noise < 0.05):
+        raise ConfigError("data.noise_std", noise, "metres in [0, 0.05) (e.g. 0.001 = 1 mm)")
+    _one_of(cfg, "data.augment", AUGMENTS)
+    _one_of(cfg, "data.eval_augment", AUGMENTS)
+    synthetic = source == "synthetic"
+    sizes = {}
+    for key in ("train_size", "val_size", "test_size"):
+        sizes[key] = _int_at_least(cfg, f"data.{key}", 1, allow_none=not synthetic)
+    batch = _int_at_least(cfg, "data.batch_size", 1)
+    _int_at_least(cfg, "data.num_workers", 0)
+    eval_batch = _int_at_least(cfg, "data.eval_batch_size", 1, allow_none=True)
+    procs = processes or 1
+    if sizes["train_size"] is not None and batch > sizes["train_size"] // procs:
+        share = sizes["train_size"] // procs
+        where = f" ({procs} processes share data.train_size={sizes['train_size']})" if procs > 1 else ""
+        raise ConfigError(
+            "data.batch_size", batch, f"1..{max(share, 1)}: at most the training samples per process{where}"
+        )
+    eval_key, eb = (
+        ("data.eval_batch_size", eval_batch) if eval_batch is not None else ("data.batch_size", batch)
+    )
+    for key in ("val_size", "test_size"):
+        n = sizes[key]
+        if n is not None and eb > n:
+            raise ConfigError(eval_key, eb, f"1..{n}: at most data.{key}={n} (the fixed {key[:-5]} set)")
+
+
+def _point_counts(n: int, strides: list[int]) -> list[int]:
+    out = []
+    for s in strides:
+        n //= s
+        out.append(n)
+    return out
+
+
+def validate_model(cfg: DictConfig) -> None:
+    arch = _one_of(cfg, "model.net.arch", ARCHS, default="arteq")
+    n = _get(cfg, "data.num_points")
+    if arch == "arteq":
+        bb = "model.net.backbone"
+        channels = _get(cfg, f"{bb}.channels", [32, 32, 64, 64])
+        strides = _get(cfg, f"{bb}.strides", [2, 1, 2, 1])
+        if not isinstance(strides, list) or not all(_is_int(s) and s >= 1 for s in strides):
+            raise ConfigError(f"{bb}.strides", strides, "a list of integers >= 1, one per backbone layer")
+        for key in ("strides", "radii", "neighbours"):
+            v = _get(cfg, f"{bb}.{key}")
+            if v is not None and (not isinstance(v, list) or len(v) != len(channels)):
+                raise ConfigError(f"{bb}.{key}", v, f"a list with one entry per layer ({len(channels)})")
+        counts = _point_counts(n, strides)
+        if min(counts) < 1:
+            most = math.prod(strides)
+            raise ConfigError(
+                f"{bb}.strides",
+                strides,
+                f"strides whose product is at most data.num_points={n} (these leave {counts} points; "
+                f"their product {most} needs data.num_points >= {most})",
+            )
+    else:
+        npoints = _get(cfg, "model.net.npoints", [])
+        prev = n
+        for i, m in enumerate(npoints):
+            if not _is_int(m) or not 1 <= m <= prev:
+                raise ConfigError(
+                    "model.net.npoints", npoints, f"decreasing integers with npoints[{i}] in 1..{prev}"
+                )
+            prev = m
+    _one_of(cfg, "model.optimizer.name", OPTIMIZERS, default="adam")
+    _positive_float(cfg, "model.optimizer.lr", " (e.g. 1e-4 for the paper, 3e-3 for the CPU default)")
+    wd = _get(cfg, "model.optimizer.weight_decay", 0.0)
+    if not (isinstance(wd, int | float) and math.isfinite(wd) and wd >= 0):
+        raise ConfigError("model.optimizer.weight_decay", wd, "a finite number >= 0")
+    _one_of(cfg, "model.scheduler.name", SCHEDULERS, default="none")
+    weights = _get(cfg, "model.loss_weights") or {}
+    known = ("pose", "global_rot", "betas", "verts", "joints", "parts")
+    for k, w in weights.items():
+        if k not in known:
+            raise ConfigError(f"model.loss_weights.{k}", w, f"a weight for one of {' | '.join(known)}")
+        if not (isinstance(w, int | float) and math.isfinite(w) and w >= 0):
+            raise ConfigError(f"model.loss_weights.{k}", w, "a finite number >= 0")
+
+
+def validate_trainer(cfg: DictConfig) -> None:
+    precision = _get(cfg, "trainer.precision", "32-true")
+    if str(precision) not in PRECISIONS:
+        raise ConfigError("trainer.precision", precision, " | ".join(PRECISIONS[:6]))
+    devices = _get(cfg, "trainer.devices", 1)
+    if not (devices == "auto" or world_size(cfg) is not None or devices == -1):
+        raise ConfigError("trainer.devices", devices, "an integer >= 1, -1 (all), 'auto' or a list of ids")
+    max_epochs = _get(cfg, "trainer.max_epochs")
+    if max_epochs is not None and (not _is_int(max_epochs) or max_epochs < 1):
+        raise ConfigError("trainer.max_epochs", max_epochs, "an integer >= 1")
+    step_ckpt = _get(cfg, "callbacks.step_checkpoint.every_n_train_steps")
+    if step_ckpt is not None and (not _is_int(step_ckpt) or step_ckpt < 0):
+        raise ConfigError(
+            "callbacks.step_checkpoint.every_n_train_steps",
+            step_ckpt,
+            "an integer >= 0 (0: no step checkpoints)",
+        )
+    for name, lg in (_get(cfg, "logger") or {}).items():
+        if lg is not None and (not isinstance(lg, dict) or "_target_" not in lg):
+            raise ConfigError(f"logger.{name}", lg, "a logger config with a _target_ (see conf/logger/)")
+
+
+def validate_train_config(cfg: DictConfig) -> None:
+    """All start-up checks of a ``conf/train.yaml`` composition; raises :class:`ConfigError`."""
+    stage = _get(cfg, "stage")
+    if stage not in (1, 2):
+        raise ConfigError("stage", stage, "1 (ground-truth part pooling) | 2 (predicted parts)")
+    if _get(cfg, "seed") is not None and not _is_int(_get(cfg, "seed")):
+        raise ConfigError("seed", _get(cfg, "seed"), "an integer")
+    validate_trainer(cfg)
+    validate_body_model(cfg)
+    validate_data(cfg, processes=world_size(cfg))
+    validate_model(cfg)
+    _existing_path(cfg, "ckpt_path", "null or a Lightning checkpoint file to resume")
+    resume = _get(cfg, "resume")
+    if resume not in (None, "auto") and not (isinstance(resume, str) and Path(resume).expanduser().is_dir()):
+        raise ConfigError(
+            "resume", resume, "null | auto (the newest run of this task) | an existing run folder"
+        )
+    if resume is not None and _get(cfg, "ckpt_path") is not None:
+        raise ConfigError("resume", resume, "null when ckpt_path is given (use one or the other)")
+    if stage == 2 and _get(cfg, "stage1.init"):
+        _existing_path(cfg, "stage1.ckpt", "null or a stage-1 checkpoint file")
+        _int_at_least(cfg, "stage1.epochs", 1)
+
+
+def validate_eval_config(cfg: DictConfig) -> None:
+    """Start-up checks of a ``conf/eval.yaml`` composition (the body model comes from the checkpoint;
+    ``ckpt_path`` is checked by :func:`arteq.eval.evaluate`)."""
+    validate_trainer(cfg)
+    validate_data(cfg)
+
+
+@contextmanager
+def exit_on_config_error(prog: str) -> Iterator[None]:
+    """For command-line entry points: a :class:`ConfigError` becomes one line on stderr and exit status 2."""
+    try:
+        yield
+    except ConfigError as e:
+        print(f"{prog}: config error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
