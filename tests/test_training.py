@@ -206,8 +206,17 @@ def test_eval_entry_point_writes_json_and_markdown(tmp_path):
     assert "| ArtEq |" in (tmp_path / "ev" / "metrics.md").read_text()
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
         bad = compose("eval", overrides=["ckpt_path=/no/such.ckpt"])
-    with pytest.raises(FileNotFoundError, match="no such checkpoint"):
+    with pytest.raises(FileNotFoundError, match="ckpt_path=/no/such.ckpt: .*no such file"):
         evaluate(bad)
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        bad_name = compose("eval", overrides=["ckpt_path=no_such_model"])
+    with pytest.raises(FileNotFoundError, match="no pretrained model of that name"):
+        evaluate(bad_name)
+    # metrics of a run's checkpoint go to its run folder; of any other file, to the eval's own folder
+    from arteq.eval import default_output_dir
+
+    assert default_output_dir(Path(s["last_ckpt"])) == Path(s["last_ckpt"]).parent.parent
+    assert default_output_dir(tmp_path / "model.ckpt") != tmp_path
 
 
 @pytest.mark.parametrize("stage", [1, 2])

@@ -126,6 +126,17 @@ def write_metrics(summary: dict[str, Any], output_dir: Path) -> None:
     log.info("metrics written to %s\n%s", output_dir / "metrics.md", metrics_table(rows))
 
 
+def default_output_dir(ckpt: Path) -> Path:
+    """A training checkpoint's run folder; for any other file (a shipped model), this eval's own folder."""
+    if ckpt.parent.name == "checkpoints":
+        return ckpt.parent.parent
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        return Path(HydraConfig.get().runtime.output_dir)
+    return Path.cwd() / "outputs" / "eval"
+
+
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Load ``cfg.ckpt_path`` and evaluate it on the configured test sets.
 
@@ -134,9 +145,12 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """
     from arteq.training.validate import validate_eval_config
 
-    ckpt = Path(cfg.ckpt_path)
-    if not ckpt.is_file():
-        raise FileNotFoundError(f"ckpt_path={ckpt}: no such checkpoint file")
+    from arteq.pretrained import resolve_checkpoint
+
+    try:  # a path, or the name of a shipped model (`ckpt_path=anny22`)
+        ckpt = resolve_checkpoint(cfg.ckpt_path)
+    except FileNotFoundError as err:
+        raise FileNotFoundError(f"ckpt_path={cfg.ckpt_path}: {err}") from None
     validate_eval_config(cfg)
     module = ArtEqModule.load_from_checkpoint(str(ckpt), map_location="cpu", weights_only=True)
     cfg.body_model = OmegaConf.create(module.hparams.body_model)
@@ -145,7 +159,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     datamodule = build_datamodule(cfg)
     trainer = hydra.utils.instantiate(cfg.trainer, logger=False, callbacks=[])
     metrics = test_module(module, datamodule, trainer)
-    out_dir = Path(cfg.output_dir) if cfg.get("output_dir") else ckpt.parent.parent
+    out_dir = Path(cfg.output_dir) if cfg.get("output_dir") else default_output_dir(ckpt)
     summary = {"task_name": f"eval {ckpt}", "ckpt_path": str(ckpt), "metrics": metrics}
     if trainer.is_global_zero:
         write_metrics(summary, out_dir)
