@@ -2,13 +2,16 @@
 
 python benchmarks/bench_train_step.py [--points 500 1000 2500 5000] [--steps 6] [--impl fast|reference|both]
 python benchmarks/bench_train_step.py --profile            # torch.profiler table of the default step
+python benchmarks/bench_train_step.py --old-tree /path/to/older/checkout   # also time that tree's code
 
 Each (points, impl) runs in a fresh subprocess so that its peak RSS is its own. The batch is generated
 once per run by the project's own datamodule (stage-2 training batches, batch size of the config); the
 step is ``module.training_step`` + backward + ``optimizer.step`` exactly as Lightning runs it (no
 Lightning loop overhead). ``--impl reference`` runs the backbone's reference implementation (gather-form
 group conv, scatter-backward re-indexing, gather 3-NN upsampling: the code before the speed-up,
-``arteq.equivariant.reference_ops``), ``fast`` the default. Reported: median seconds per step over
+``arteq.equivariant.reference_ops``), ``fast`` the default. ``--old-tree DIR`` adds rows ``old``: the same
+step with the code and configs of another checkout (e.g. a ``git worktree`` of the commit before the
+speed-up), glibc allocator as is, in the same run, so that ratios are measured back to back. Reported: median seconds per step over
 ``--steps`` steps after one warm-up step, steps/s, and peak RSS growth during the steps.
 """
 
@@ -16,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import statistics
 import subprocess
@@ -32,12 +36,12 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def build(points: int, overrides: list[str]):
+def build(points: int, overrides: list[str], conf: str = CONF):
     from hydra import compose, initialize_config_dir
 
     from arteq.training.build import build_datamodule, build_module
 
-    with initialize_config_dir(version_base="1.3", config_dir=CONF):
+    with initialize_config_dir(version_base="1.3", config_dir=conf):
         cfg = compose(
             "train",
             overrides=[f"data.num_points={points}", "data.num_workers=0", "data.cache=false", *overrides],
@@ -50,18 +54,23 @@ def build(points: int, overrides: list[str]):
     return module, batch
 
 
-def run_one(points: int, impl: str, steps: int, overrides: list[str], malloc: str) -> dict:
-    from arteq.equivariant import reference_ops
-    from arteq.runtime import tune_cpu_allocator
+def run_one(points: int, impl: str, steps: int, overrides: list[str], malloc: str, conf: str) -> dict:
+    import contextlib
 
-    if malloc == "tuned":
-        tune_cpu_allocator()
+    if impl == "old":  # another checkout's code (on PYTHONPATH): no reference switch, no allocator tuning
+        switch = contextlib.nullcontext()
+    else:
+        from arteq.equivariant import reference_ops
+        from arteq.runtime import tune_cpu_allocator
 
-    module, batch = build(points, overrides)
+        if malloc == "tuned":
+            tune_cpu_allocator()
+        switch = reference_ops(impl == "reference")
+    module, batch = build(points, overrides, conf)
     opt = torch.optim.Adam(module.net.parameters(), lr=1e-4)
     base = _rss_mb()
     times = []
-    with reference_ops(impl == "reference"):
+    with switch:
         for i in range(steps + 1):
             t = time.perf_counter()
             loss = module._step(batch, use_gt_parts=False)[2]["loss"]
@@ -116,24 +125,34 @@ def main() -> None:
         default="tuned",
         help="glibc allocator: as is, or arteq.runtime.tune_cpu_allocator() (what the entry points do)",
     )
+    ap.add_argument("--old-tree", type=Path, help="another checkout: its src/ and conf/ give rows 'old'")
+    ap.add_argument("--conf", default=CONF, help=argparse.SUPPRESS)
     ap.add_argument("--one", nargs=2, metavar=("POINTS", "IMPL"), help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.profile:
         profile(a.points[0], a.override, a.rows)
         return
     if a.one:
-        print(json.dumps(run_one(int(a.one[0]), a.one[1], a.steps, a.override, a.malloc)))
+        print(json.dumps(run_one(int(a.one[0]), a.one[1], a.steps, a.override, a.malloc, a.conf)))
         return
     impls = ["reference", "fast"] if a.impl == "both" else [a.impl]
+    if a.old_tree:
+        impls = ["old", *impls]
     print(
         f"torch {torch.__version__}, {torch.get_num_threads()} threads, allocator {a.malloc}, "
         f"median of {a.steps} steps\n"
     )
-    print("| points | impl | batch | s/step | steps/s | peak MB | speed-up |")
+    base_impl = impls[0]
+    print(f"| points | impl | batch | s/step | steps/s | peak MB | speed-up vs {base_impl} |")
     print("|---:|---|---:|---:|---:|---:|---:|")
     for n in a.points:
         ref = None
         for impl in impls:
+            env = None
+            conf = CONF
+            if impl == "old":
+                env = dict(os.environ, PYTHONPATH=str(a.old_tree.resolve() / "src"))
+                conf = str(a.old_tree.resolve() / "conf")
             cmd = [
                 sys.executable,
                 __file__,
@@ -144,16 +163,18 @@ def main() -> None:
                 str(a.steps),
                 "--malloc",
                 a.malloc,
+                "--conf",
+                conf,
             ]
             cmd += ["--override", *a.override]
-            out = subprocess.run(cmd, capture_output=True, text=True, check=False)
+            out = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
             if out.returncode != 0:
                 print(f"| {n} | {impl} | failed: {out.stderr.strip().splitlines()[-1]} |||||")
                 continue
             r = json.loads(out.stdout.strip().splitlines()[-1])
-            if impl == "reference":
+            if impl == base_impl:
                 ref = r["step_s"]
-            ratio = f"{ref / r['step_s']:.2f}x" if ref and impl == "fast" else ""
+            ratio = f"{ref / r['step_s']:.2f}x" if ref and impl != base_impl else ""
             print(
                 f"| {n} | {impl} | {r['batch']} | {r['step_s']:.3f} | {r['steps_per_s']:.2f} | "
                 f"{r['peak_mb']:.0f} | {ratio} |",

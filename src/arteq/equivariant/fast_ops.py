@@ -150,7 +150,9 @@ def group_conv_fourier(x: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     """Group convolution over the 13-element neighbourhood, exact, in the Fourier basis.
 
     x: ``[B, N, 60, C_in]``; weight: ``[13 * C_in, C_out]`` (rows ordered (k, c) like the reference
-    :func:`arteq.equivariant.layers.group_conv`) -> ``[B, N, 60, C_out]``.
+    :func:`arteq.equivariant.layers.group_conv`) -> ``[B, N, 60, C_out]``. Every output mixes all 60
+    group elements, so in half precision its rounding is not equivariant: under autocast the layers use
+    the gather form, which only permutes (see SeparableConvBlock.forward).
     """
     b, n, a, c_in = x.shape
     c_out = weight.shape[1]
@@ -226,16 +228,20 @@ def interpolate_csr(idx: torch.Tensor, w: torch.Tensor, feats: torch.Tensor) -> 
     feat = feats.shape[2:]
     dev = idx.device
     cols = (idx + torch.arange(b, device=dev)[:, None, None] * n).reshape(-1)
-    vals = w.reshape(-1).to(feats.dtype)
+    # sparse kernels have no half-precision forms on CPU: bfloat16 / float16 features (autocast) are
+    # summed in float32 (autocast off: it would cast the product back down) and returned in their own
+    # dtype; float32 / float64 are left as they are
+    work = torch.promote_types(feats.dtype, torch.float32)
+    vals = w.reshape(-1).to(work)
     rows = torch.arange(b * m, device=dev).repeat_interleave(k)
     order = torch.argsort(cols, stable=True)  # the transpose: rows of S^T = source points
     crow_t = torch.zeros(b * n + 1, dtype=torch.long, device=dev)
     crow_t[1:] = torch.cumsum(torch.bincount(cols, minlength=b * n), 0)
-    with warnings.catch_warnings():  # "sparse CSR support is in beta": the ops used here are stable
-        warnings.simplefilter("ignore", UserWarning)
+    with warnings.catch_warnings(), torch.autocast(dev.type, enabled=False):
+        warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta": these ops are stable
         s = torch.sparse_csr_tensor(
             torch.arange(0, b * m * k + 1, k, device=dev), cols, vals, (b * m, b * n), check_invariants=False
         )
         st = torch.sparse_csr_tensor(crow_t, rows[order], vals[order], (b * n, b * m), check_invariants=False)
-        out = _SparseMM.apply(s, st, feats.reshape(b * n, -1))
-    return out.reshape(b, m, *feat)
+        out = _SparseMM.apply(s, st, feats.reshape(b * n, -1).to(work))
+    return out.to(feats.dtype).reshape(b, m, *feat)

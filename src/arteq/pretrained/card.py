@@ -85,16 +85,6 @@ def _run_summary(run: Path) -> dict[str, Any]:
     return info
 
 
-def _best_checkpoint(run: Path) -> Path:
-    ckpts = sorted(p for p in (run / "checkpoints").glob("*.ckpt") if p.name != "last.ckpt")
-    if ckpts:
-        return ckpts[-1]
-    last = run / "checkpoints" / "last.ckpt"
-    if last.is_file():
-        return last
-    raise FileNotFoundError(f"{run}/checkpoints: no checkpoint")
-
-
 def _fmt_table(metrics: Mapping[str, Mapping[str, float]]) -> str:
     lines = ["| split | part acc % | V2V cm | MPJPE cm | rot err deg |", "|---|---:|---:|---:|---:|"]
     for split in SUBSET_SPLITS:
@@ -152,8 +142,19 @@ def write_card(path: Path, info: Mapping[str, Any], hparams: Mapping[str, Any], 
     path.write_text("\n".join(lines) + "\n")
 
 
-def export(run: Path, name: str, stage1_run: Path | None, notes: str | None, subset_n: int) -> Path:
-    ckpt = _best_checkpoint(run)
+def export(
+    run: Path,
+    name: str,
+    stage1_run: Path | None,
+    notes: str | None,
+    subset_n: int,
+    commands: list[str] | None = None,
+    training: str | None = None,
+    hardware: str | None = None,
+) -> Path:
+    from arteq.io.runs import find_checkpoint
+
+    ckpt = find_checkpoint(run, "best")
     state = torch.load(str(ckpt), map_location="cpu", weights_only=True)  # once: a live run may replace it
     out = PRETRAINED_DIR / f"{name}.ckpt"
     export_weights(state, out, {"name": name, "source_checkpoint": ckpt.name})
@@ -170,6 +171,9 @@ def export(run: Path, name: str, stage1_run: Path | None, notes: str | None, sub
         "stage2": summary,
         "stage1": _run_summary(stage1_run) if stage1_run else None,
         "notes": notes,
+        "commands": [f"`{c}`" for c in commands or []],
+        "training": training,
+        "hardware": hardware,
     }
     export_weights(state, out, info)
     params = sum(p.numel() for p in module.net.parameters())
@@ -203,11 +207,14 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("--stage1-run", type=Path)
     e.add_argument("--notes")
     e.add_argument("--subset", type=int, default=16)
+    e.add_argument("--command", action="append", help="a command that trained it (repeat, in order)")
+    e.add_argument("--training", help="steps, epochs and wall-clock, as text")
+    e.add_argument("--hardware", help="the machine it trained on, as text")
     c = sub.add_parser("check", help="recompute a shipped model's subset metrics")
     c.add_argument("name", nargs="?", default="anny22")
     a = ap.parse_args(argv)
     if a.cmd == "export":
-        print(export(a.run, a.name, a.stage1_run, a.notes, a.subset))
+        print(export(a.run, a.name, a.stage1_run, a.notes, a.subset, a.command, a.training, a.hardware))
         return 0
     return check(a.name)
 
