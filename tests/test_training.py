@@ -108,7 +108,7 @@ def test_overfits_a_tiny_batch(tiny_batch):
     module = _module(stage=1, optimizer={"name": "adam", "lr": 3e-3})
     opt = torch.optim.Adam(module.net.parameters(), lr=3e-3)
     losses, rot_err = [], []
-    from arteq.training.metrics import geodesic_deg
+    from arteq.geometry.rotations import geodesic_deg
 
     # parts with (almost) no points have no defined rotation (their pooled feature is ~0 and the weighted
     # mean M ~0, so the projection is decided by rounding): score the parts every cloud actually shows
