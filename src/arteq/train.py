@@ -352,12 +352,13 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     summary.update(result)
     if cfg.test and trainer.is_global_zero:  # run files: rank 0 only; the other ranks wait below
         if cfg.mean_pose_baseline:
-            from arteq.eval import evaluate_mean_pose
+            from arteq.training.floor import evaluate_mean_pose
 
             summary["mean_pose_baseline"] = evaluate_mean_pose(cfg)
         from arteq.eval import write_metrics
+        from arteq.results import method_name
 
-        write_metrics(summary, output_dir)
+        write_metrics(summary, output_dir, method_name(cfg))
     trainer.strategy.barrier("arteq.train: run files written")
     return summary
 
