@@ -38,12 +38,13 @@ TINY_PN2_OVERRIDES = [
 ]  # fmt: skip
 
 
-def compose_config(overrides: list[str], config_name: str = "train"):
-    """``conf/<config_name>.yaml`` composed with ``overrides`` (Hydra config included)."""
+def compose_config(overrides: list[str], config_name: str = "train", hydra_config: bool = True):
+    """``conf/<config_name>.yaml`` composed with ``overrides`` (Hydra config included unless
+    ``hydra_config=False``: what ``train()`` / ``evaluate()`` get in a test)."""
     from hydra import compose, initialize_config_dir
 
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        return compose(config_name, overrides=overrides, return_hydra_config=True)
+        return compose(config_name, overrides=overrides, return_hydra_config=hydra_config)
 
 
 @pytest.fixture()

@@ -4,9 +4,9 @@ import pytest
 import roma
 import torch
 
+from arteq.body.toy import ToyBody
 from arteq.data import BodyScanDataModule, BodyScanDataset, SyntheticIDPoses
 from arteq.data.dataset import seeded_generator
-from arteq.data.toy_body import ToyBody
 from arteq.geometry.sampling import sample_surface, smooth_density_field
 
 KEYS = {

@@ -7,6 +7,7 @@ import roma
 import torch
 
 from arteq.body.skeleton import JOINT_NAMES
+from arteq.body.toy import ToyBody
 from arteq.data.poses import (
     ID_FAMILIES,
     SyntheticIDPoses,
@@ -16,7 +17,6 @@ from arteq.data.poses import (
     measure_id_ood_gap,
     nearest_pose_distance,
 )
-from arteq.data.toy_body import ToyBody
 
 J = {n: i for i, n in enumerate(JOINT_NAMES)}
 

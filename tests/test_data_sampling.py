@@ -4,7 +4,7 @@ import pytest
 import torch
 from scipy.spatial import cKDTree
 
-from arteq.data.toy_body import ToyBody
+from arteq.body.toy import ToyBody
 from arteq.geometry.sampling import (
     face_areas,
     interpolate_labels,

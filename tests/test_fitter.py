@@ -6,7 +6,7 @@ import torch
 
 from arteq.fitting import chamfer_terms, fit_body, root_candidates
 from arteq.geometry.pointops import farthest_point_sample
-from arteq.training.metrics import geodesic_deg
+from arteq.geometry.rotations import geodesic_deg
 
 
 @pytest.fixture(scope="module")

@@ -8,10 +8,11 @@ import torch
 
 from arteq.body.skeleton import PARENTS, global_to_local, local_to_global
 from arteq.equivariant import element_orders, group_rotations, rotate_group_features
+from arteq.geometry.rotations import geodesic_deg
 from arteq.models.heads import PartSegmenter, PoseHead, ShapeHead, pool_parts
 from arteq.models.placement import estimate_translation, part_centroid_matrix, vertex_areas
 from arteq.training.losses import arteq_losses
-from arteq.training.metrics import BodyFitMetrics, geodesic_deg
+from arteq.training.metrics import BodyFitMetrics
 
 
 def _elements(order: int, count: int = 2) -> list[int]:

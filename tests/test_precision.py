@@ -19,7 +19,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from arteq.equivariant import group_rotations
-from arteq.training.metrics import geodesic_deg
+from arteq.geometry.rotations import geodesic_deg
 from arteq.training.module import ArtEqModule
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")

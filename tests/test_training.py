@@ -9,47 +9,15 @@ from pathlib import Path
 import pytest
 import torch
 import torch.nn.functional as F
-from hydra import compose, initialize_config_dir
 
 from arteq.config import radii_for_points
 from arteq.equivariant import element_orders, group_rotations
 from arteq.training.module import ArtEqModule
+from conftest import TINY_NET, TINY_OVERRIDES, compose_config
 
-CONF = str(Path(__file__).resolve().parents[1] / "conf")
 # the paper's ball radii scaled to 200 points (as the configs do): the tiny clouds' neighbourhoods hold points
 RADII_200 = radii_for_points([0.08, 0.113, 0.16, 0.16], 200)
-
-TINY_NET = {
-    "backbone": {
-        "channels": [8, 8, 8, 8],
-        "neighbours": [16, 8, 16, 8],
-        "kernel": "ico13",
-        "radii": RADII_200,
-    },
-    "segmenter": {"hidden": 32},
-    "pose_head": {"dim": 32, "heads": 4, "mlp_hidden": 32},
-    "shape_head": {"dim": 32, "heads": 4, "mlp_hidden": 32},
-}
-TINY_OVERRIDES = [
-    "data.num_points=200",
-    "data.train_size=8",
-    "data.val_size=4",
-    "data.test_size=4",
-    "data.batch_size=2",
-    "data.num_workers=0",
-    "trainer.max_epochs=1",
-    "+trainer.limit_train_batches=2",
-    "trainer.enable_progress_bar=false",
-    "model.net.backbone.channels=[8,8,8,8]",
-    "model.net.backbone.neighbours=[16,8,16,8]",
-    "model.net.segmenter.hidden=32",
-    "model.net.pose_head.dim=32",
-    "model.net.pose_head.heads=4",
-    "model.net.pose_head.mlp_hidden=32",
-    "model.net.shape_head.dim=32",
-    "model.net.shape_head.mlp_hidden=32",
-    "mean_pose_baseline=false",
-]
+TINY_NET_200 = {**TINY_NET, "backbone": {**TINY_NET["backbone"], "radii": RADII_200}}
 
 
 @pytest.fixture(scope="module")
@@ -66,15 +34,11 @@ def tiny_batch():
 
 def _module(stage: int = 2, **kw) -> ArtEqModule:
     torch.manual_seed(0)
-    return ArtEqModule(net=TINY_NET, body_model={"name": "anny22"}, stage=stage, **kw)
+    return ArtEqModule(net=TINY_NET_200, body_model={"name": "anny22"}, stage=stage, **kw)
 
 
 def _cfg(tmp_path: Path, *extra: str):
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        return compose(
-            "train",
-            overrides=[*TINY_OVERRIDES, f"paths.output_root={tmp_path}", *extra],
-        )
+    return compose_config([*TINY_OVERRIDES, f"paths.output_root={tmp_path}", *extra], hydra_config=False)
 
 
 def test_gradients_finite_at_initialisation(tiny_batch):
@@ -108,7 +72,7 @@ def test_overfits_a_tiny_batch(tiny_batch):
     module = _module(stage=1, optimizer={"name": "adam", "lr": 3e-3})
     opt = torch.optim.Adam(module.net.parameters(), lr=3e-3)
     losses, rot_err = [], []
-    from arteq.training.metrics import geodesic_deg
+    from arteq.geometry.rotations import geodesic_deg
 
     # parts with (almost) no points have no defined rotation (their pooled feature is ~0 and the weighted
     # mean M ~0, so the projection is decided by rounding): score the parts every cloud actually shows
@@ -193,23 +157,19 @@ def test_eval_entry_point_writes_json_and_markdown(tmp_path):
     from arteq.train import train
 
     s = train(_cfg(tmp_path, "+experiment=stage1", f"paths.output_dir={tmp_path / 'r'}", "test=false"))
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(
-            "eval",
-            overrides=[f"ckpt_path={s['last_ckpt']}", f"output_dir={tmp_path / 'ev'}", "data.num_points=200",
-                       "data.test_size=4", "data.batch_size=2", "data.num_workers=0",
-                       "trainer.enable_progress_bar=false"],
-        )  # fmt: skip
+    cfg = compose_config(
+        [f"ckpt_path={s['last_ckpt']}", f"output_dir={tmp_path / 'ev'}", "data.num_points=200",
+         "data.test_size=4", "data.batch_size=2", "data.num_workers=0", "trainer.enable_progress_bar=false"],
+        "eval", hydra_config=False,
+    )  # fmt: skip
     evaluate(cfg)
     out = json.loads((tmp_path / "ev" / "metrics.json").read_text())
     assert set(out["metrics"]) == {"test_id", "test_ood"}
     assert "| ArtEq |" in (tmp_path / "ev" / "metrics.md").read_text()
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        bad = compose("eval", overrides=["ckpt_path=/no/such.ckpt"])
+    bad = compose_config(["ckpt_path=/no/such.ckpt"], "eval", hydra_config=False)
     with pytest.raises(FileNotFoundError, match="ckpt_path=/no/such.ckpt: .*no such file"):
         evaluate(bad)
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        bad_name = compose("eval", overrides=["ckpt_path=no_such_model"])
+    bad_name = compose_config(["ckpt_path=no_such_model"], "eval", hydra_config=False)
     with pytest.raises(FileNotFoundError, match="no pretrained model of that name"):
         evaluate(bad_name)
     # metrics of a run's checkpoint go to its run folder; of any other file, to the eval's own folder

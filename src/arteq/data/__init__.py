@@ -1,7 +1,7 @@
 """Body-scan data: pose sources, synthetic scans (noisy non-uniform clouds) and the LightningDataModule."""
 
 from arteq.data.amass import AmassPoses, read_amass_npz
-from arteq.data.datamodule import BodyScanDataModule, build_body
+from arteq.data.datamodule import BodyScanDataModule
 from arteq.data.dataset import BodyScanDataset, EpochSampler, TensorDictDataset
 from arteq.data.poses import (
     ID_FAMILIES,
@@ -24,7 +24,6 @@ __all__ = [
     "SyntheticIDPoses",
     "SyntheticOODPoses",
     "TensorDictDataset",
-    "build_body",
     "measure_id_ood_gap",
     "nearest_pose_distance",
     "read_amass_npz",

@@ -33,6 +33,7 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader, Dataset
 
+from arteq.body.factory import create_body
 from arteq.data.dataset import (
     AUGMENTS,
     SAMPLE_KEYS,
@@ -108,24 +109,6 @@ def read_cache(path: Path, split: str | None = None) -> dict[str, torch.Tensor]:
     return {k: tensors[k] for k in SAMPLE_KEYS}
 
 
-def build_body(body_model: Any) -> torch.nn.Module:
-    """A body model from a module (returned as is) or a config mapping for ``arteq.body.load_body_model``.
-
-    ``{"name": "toy"}`` gives the procedural :class:`arteq.data.toy_body.ToyBody` (fast tests).
-    """
-    if isinstance(body_model, torch.nn.Module):
-        return body_model
-    cfg = dict(body_model or {"name": "anny22"})
-    cfg.pop("_target_", None)
-    if cfg.get("name") == "toy":
-        from arteq.data.toy_body import ToyBody
-
-        return ToyBody(num_betas=int(cfg.get("num_betas", 2)))
-    from arteq.body import load_body_model
-
-    return load_body_model(**cfg)
-
-
 def body_fingerprint(body: torch.nn.Module) -> str:
     """Hash of a body model's identity: its faces and its rest mesh at betas = 0."""
     h = hashlib.sha256()
@@ -155,8 +138,9 @@ class BodyScanDataModule(L.LightningDataModule):
 
     Args:
         source: ``synthetic`` (ID motions + OOD extremes) or ``amass`` (DFaust_67 + MPI_Limits).
-        body_model: config mapping for :func:`arteq.body.load_body_model` (``_target_`` ignored;
-            ``name: toy`` for the procedural test body) or a body ``nn.Module``.
+        body_model: a body ``nn.Module`` (used as is: build it once and pass it to share it), or a
+            config mapping for :func:`arteq.body.create_body` (``_target_`` ignored; ``name: toy`` for
+            the procedural test body).
         amass_root: AMASS root folder (``source=amass``).
         amass: extra keyword arguments of :class:`arteq.data.amass.AmassPoses` for the ID splits
             (``datasets``, ``test_motions``, ``val_motions``, ``eval_stride``, ``train_stride``);
@@ -246,7 +230,7 @@ class BodyScanDataModule(L.LightningDataModule):
     def body(self) -> torch.nn.Module:
         """The body model (built on first access; the LightningModule can reuse it)."""
         if self._body is None:
-            self._body = build_body(self.body_model_cfg).eval()
+            self._body = create_body(self.body_model_cfg).eval()
         return self._body
 
     def _sources(self, split: str) -> PoseSource:
@@ -432,7 +416,7 @@ class BodyScanDataModule(L.LightningDataModule):
         return self._eval_loader("val")
 
     def test_dataloader(self) -> list[DataLoader]:
-        """``[test_id, test_ood]`` (the order of ``arteq.training.module.TEST_SPLITS``)."""
+        """``[test_id, test_ood]`` (the order of ``arteq.results.TEST_SPLITS``)."""
         return [self._eval_loader(s) for s in ("test_id", "test_ood")]
 
     # ------------------------------------------------------------------ resume

@@ -23,7 +23,8 @@ import roma
 import torch
 from torch.utils.data import Dataset, Sampler
 
-from arteq.data.poses import PoseSource, euler_to_rotmat, random_rotmat
+from arteq.data.poses import PoseSource
+from arteq.geometry.rotations import euler_to_rotmat, random_rotmat
 from arteq.geometry.sampling import interpolate_labels, sample_surface, smooth_density_field
 
 AUGMENTS = ("none", "so3", "z")

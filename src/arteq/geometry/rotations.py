@@ -1,11 +1,11 @@
-"""Rotation helpers: Euler angles, Haar-uniform random rotations (float64 by default)."""
+"""Rotation helpers: Euler angles, Haar-uniform random rotations (float64 by default), geodesic angles."""
 
 from __future__ import annotations
 
 import roma
 import torch
 
-__all__ = ["euler_to_rotmat", "random_rotmat"]
+__all__ = ["euler_to_rotmat", "geodesic_deg", "random_rotmat"]
 
 
 def euler_to_rotmat(angles_deg: torch.Tensor) -> torch.Tensor:
@@ -26,3 +26,9 @@ def random_rotmat(n: int, generator: torch.Generator, dtype: torch.dtype = torch
     q = torch.randn(n, 4, generator=generator, dtype=dtype)
     q = q / q.norm(dim=-1, keepdim=True)
     return roma.unitquat_to_rotmat(q)
+
+
+def geodesic_deg(r1: torch.Tensor, r2: torch.Tensor) -> torch.Tensor:
+    """Angle (degrees) of ``r1^T r2`` for ``[..., 3, 3]`` rotations."""
+    cos = ((r1.transpose(-1, -2) @ r2).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
+    return torch.rad2deg(torch.acos(cos.clamp(-1.0, 1.0)))

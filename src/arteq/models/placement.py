@@ -37,6 +37,13 @@ def part_centroid_matrix(areas: torch.Tensor, vertex_labels: torch.Tensor, num_p
     return a / a.sum(dim=0, keepdim=True).clamp_min(1e-12)
 
 
+def body_centroid_matrix(body: torch.nn.Module, num_parts: int) -> torch.Tensor:
+    """``[V, K]`` float32 :func:`part_centroid_matrix` of a body model's rest mesh (areas in float64)."""
+    template = body.v_template.detach().double()
+    areas = vertex_areas(template, body.faces)
+    return part_centroid_matrix(areas, body.part_labels, num_parts).float()
+
+
 def estimate_translation(
     vertices: torch.Tensor,
     centroid_matrix: torch.Tensor,

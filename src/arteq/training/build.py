@@ -1,25 +1,43 @@
-"""Build the datamodule and the LightningModule from a composed config (``conf/train.yaml``).
+"""Build the body, the datamodule and the LightningModule from a composed config (``conf/train.yaml``).
 
 Kept apart from :mod:`arteq.train`: that file is also ``__main__`` under ``python -m arteq.train``, and
 importing it a second time from there would load a second copy of it.
+
+A run builds its body once (:func:`build_body`) and hands it to every datamodule and module it makes:
+the datamodules share it (CPU, sample generation), each module gets a copy of its own (a module moves
+its body to its device).
 """
 
 from __future__ import annotations
 
+import copy
+
 import hydra
 import lightning as L
 from omegaconf import DictConfig, OmegaConf
+from torch import nn
 
+from arteq.body.factory import create_body
+from arteq.body.model import BodyModel
 from arteq.training.module import ArtEqModule
 
 
-def build_datamodule(cfg: DictConfig) -> L.LightningDataModule:
-    """The configured :class:`arteq.data.BodyScanDataModule` (``cfg.data``) on ``cfg.body_model``."""
-    return hydra.utils.instantiate(cfg.data, body_model=OmegaConf.to_container(cfg.body_model, resolve=True))
+def build_body(cfg: DictConfig) -> BodyModel:
+    """The body model of ``cfg.body_model`` (:func:`arteq.body.create_body`)."""
+    return create_body(cfg.body_model)
 
 
-def build_module(cfg: DictConfig, stage: int) -> ArtEqModule:
-    """The :class:`ArtEqModule` of ``cfg.model`` for ``stage`` (1 or 2)."""
+def build_datamodule(cfg: DictConfig, body: nn.Module | None = None) -> L.LightningDataModule:
+    """The configured :class:`arteq.data.BodyScanDataModule` (``cfg.data``) on ``body``, or on a body
+    built from ``cfg.body_model`` when none is given."""
+    if body is None:
+        body = OmegaConf.to_container(cfg.body_model, resolve=True)
+    return hydra.utils.instantiate(cfg.data, body_model=body)
+
+
+def build_module(cfg: DictConfig, stage: int, body: nn.Module | None = None) -> ArtEqModule:
+    """The :class:`ArtEqModule` of ``cfg.model`` for ``stage`` (1 or 2), with a copy of ``body`` (built
+    from ``cfg.body_model`` when none is given)."""
     return ArtEqModule(
         net=cfg.model.net,
         body_model=cfg.body_model,
@@ -30,4 +48,5 @@ def build_module(cfg: DictConfig, stage: int) -> ArtEqModule:
         markers=cfg.model.markers,
         marker_weight=cfg.model.marker_weight,
         data=cfg.data,
+        body=None if body is None else copy.deepcopy(body).train(),  # a new module is in training mode
     )

@@ -11,12 +11,7 @@ import torch
 from torchmetrics import Metric
 
 from arteq.body.skeleton import NUM_JOINTS
-
-
-def geodesic_deg(r1: torch.Tensor, r2: torch.Tensor) -> torch.Tensor:
-    """Angle (degrees) of ``r1^T r2`` for ``[..., 3, 3]`` rotations."""
-    cos = ((r1.transpose(-1, -2) @ r2).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
-    return torch.rad2deg(torch.acos(cos.clamp(-1.0, 1.0)))
+from arteq.geometry.rotations import geodesic_deg
 
 
 class BodyFitMetrics(Metric):

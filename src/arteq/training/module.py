@@ -9,15 +9,13 @@ import lightning as L
 import numpy as np
 import torch
 
-from arteq.body import load_body_model
-from arteq.models.arteq_net import ArtEqNet
-from arteq.models.placement import estimate_translation, part_centroid_matrix, vertex_areas
+from arteq.body.factory import create_body
+from arteq.models.placement import body_centroid_matrix, estimate_translation
 from arteq.models.precision import full_precision, upcast
+from arteq.models.registry import build_net
+from arteq.results import TEST_SPLITS, metric_values
 from arteq.training.losses import DEFAULT_WEIGHTS, arteq_losses
 from arteq.training.metrics import BodyFitMetrics
-
-#: Names of the evaluation splits, in the order the datamodule returns their loaders.
-TEST_SPLITS = ("test_id", "test_ood")
 
 
 def marker_vertices(template: np.ndarray, count: int) -> np.ndarray:
@@ -34,22 +32,6 @@ def marker_vertices(template: np.ndarray, count: int) -> np.ndarray:
         chosen.append(nxt)
         dist = np.minimum(dist, np.linalg.norm(template - template[nxt], axis=1))
     return np.asarray(chosen)
-
-
-def build_net(cfg: Mapping[str, Any]) -> torch.nn.Module:
-    """The network named by ``cfg["arch"]`` (default ``"arteq"``) built from the other keys.
-
-    Every architecture returns the same output dict as :meth:`ArtEqNet.forward` and has ``num_parts``.
-    """
-    cfg = dict(cfg)
-    arch = cfg.pop("arch", "arteq")
-    if arch == "arteq":
-        return ArtEqNet(**cfg)
-    if arch == "pointnet2":
-        from arteq.models.baselines import PointNet2Regressor
-
-        return PointNet2Regressor(**cfg)
-    raise ValueError(f"model.net.arch must be 'arteq' or 'pointnet2', got {arch!r}")
 
 
 def _plain(x: Any) -> Any:
@@ -69,7 +51,7 @@ class ArtEqModule(L.LightningModule):
 
     Args:
         net: keyword arguments of :class:`ArtEqNet` (``num_betas`` is taken from ``body_model``).
-        body_model: keyword arguments of :func:`arteq.body.load_body_model` (``name``, ``model_path``,
+        body_model: the body's config for :func:`arteq.body.create_body` (``name``, ``model_path``,
             ``num_betas``...). The body model is rebuilt from this at load time and is *not* stored in
             checkpoints (SMPL files are licensed and must not be redistributed inside them).
         stage: 1 pools part features with ground-truth labels (all modules trained); 2 pools with
@@ -80,6 +62,11 @@ class ArtEqModule(L.LightningModule):
         markers: number of marker vertices weighted ``marker_weight`` in the vertex loss.
         data: the data configuration trained on; recorded in checkpoints (provenance, and so that a
             stage-2 run only picks up a stage-1 run trained on the same kind of data), not used here.
+        body: the body model of ``body_model`` when the caller has built it already (it becomes this
+            module's own: moved with it to its device); not a hyperparameter.
+
+    After ``trainer.test``, :attr:`test_results` holds ``{split: {metric: value}}`` (see
+    :mod:`arteq.results`), the values this module logged.
     """
 
     def __init__(
@@ -93,6 +80,7 @@ class ArtEqModule(L.LightningModule):
         markers: int = 64,
         marker_weight: float = 2.0,
         data: Mapping[str, Any] | None = None,
+        body: torch.nn.Module | None = None,
     ):
         super().__init__()
         net = dict(_plain(net) or {})
@@ -112,7 +100,7 @@ class ArtEqModule(L.LightningModule):
                 "data": dict(_plain(data) or {}),
             }
         )
-        self.body = load_body_model(**body_model)
+        self.body = create_body(body if body is not None else body_model)
         for name, buf in list(self.body.named_buffers(recurse=False)):
             self.body.register_buffer(name, buf, persistent=False)  # rebuilt from file, never saved
         for p in self.body.parameters():
@@ -120,13 +108,9 @@ class ArtEqModule(L.LightningModule):
         net.setdefault("num_betas", self.body.num_betas)
         self.net = build_net(net)
 
+        centroids = body_centroid_matrix(self.body, self.net.num_parts)
+        self.register_buffer("centroid_matrix", centroids, persistent=False)
         template = self.body.v_template.detach().double()
-        areas = vertex_areas(template, self.body.faces)
-        self.register_buffer(
-            "centroid_matrix",
-            part_centroid_matrix(areas, self.body.part_labels, self.net.num_parts).float(),
-            persistent=False,
-        )
         vw = torch.ones(template.shape[0])
         if markers > 0:
             vw[torch.from_numpy(marker_vertices(template.numpy(), markers))] = marker_weight
@@ -134,6 +118,7 @@ class ArtEqModule(L.LightningModule):
 
         self.val_metrics = BodyFitMetrics()
         self.test_metrics = torch.nn.ModuleList([BodyFitMetrics() for _ in TEST_SPLITS])
+        self.test_results: dict[str, dict[str, Any]] = {}
 
     # ------------------------------------------------------------------ inference
     def forward(self, points: torch.Tensor, gt_labels: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
@@ -204,24 +189,28 @@ class ArtEqModule(L.LightningModule):
         # compute() gathers the metric states of all ranks, so all of them must take part.
         loaders = self.trainer.test_dataloaders if self._trainer is not None else None
         n_run = len(loaders) if isinstance(loaders, list | tuple) else 1
+        self.test_results = {}
         for split, metric in list(zip(TEST_SPLITS, self.test_metrics))[:n_run]:
-            self._log_metrics(split, metric)
+            self.test_results[split] = self._log_metrics(split, metric)
 
-    def _log_metrics(self, split: str, metric: BodyFitMetrics, prog_bar: bool = False) -> None:
+    def _log_metrics(self, split: str, metric: BodyFitMetrics, prog_bar: bool = False) -> dict[str, Any]:
+        """Log a split's metrics and return them as results (the logged float32 values)."""
         # compute() sums the metric states over all ranks (torchmetrics), so every rank holds the same
         # values; sync_dist with "max" only tells Lightning so, and leaves the values bit for bit as they are.
-        values = metric.compute()
+        values = {k: v.float() for k, v in metric.compute().items()}
+        results = metric_values(values)
         per_part = values.pop("rot_err_deg_per_part")
         for k, v in values.items():
             self.log(
-                f"{split}/{k}", v.float(), prog_bar=prog_bar and k in ("v2v_cm", "part_acc"),
+                f"{split}/{k}", v, prog_bar=prog_bar and k in ("v2v_cm", "part_acc"),
                 sync_dist=True, reduce_fx="max",
             )  # fmt: skip
         from arteq.body.skeleton import JOINT_NAMES
 
         for name, v in zip(JOINT_NAMES, per_part):
-            self.log(f"{split}_rot_per_part/{name}", v.float(), sync_dist=True, reduce_fx="max")
+            self.log(f"{split}_rot_per_part/{name}", v, sync_dist=True, reduce_fx="max")
         metric.reset()
+        return results
 
     # ------------------------------------------------------------------ optimisation
     def configure_optimizers(self):
