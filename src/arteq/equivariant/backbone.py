@@ -136,12 +136,14 @@ class EquivariantBackbone(nn.Module):
                     f"got {tuple(fps_idx.shape)}"
                 )
             if fps_idx.dtype != torch.long:
-                raise ValueError(f"EquivariantBackbone: fps_idx must be long (int64), got {fps_idx.dtype}")
+                raise ValueError(
+                    f"EquivariantBackbone: fps_idx must be long indices (int64), got {fps_idx.dtype}"
+                )
             fps_idx = fps_idx[:, :need]
             # range check on the CPU only (on an accelerator min / max would be a host-device sync)
             if fps_idx.device.type == "cpu" and (int(fps_idx.min()) < 0 or int(fps_idx.max()) >= n):
                 raise ValueError(
-                    f"EquivariantBackbone: fps_idx must be indices in [0, {n}), got values in "
+                    f"EquivariantBackbone: fps_idx must be long indices in [0, {n}), got values in "
                     f"[{int(fps_idx.min())}, {int(fps_idx.max())}]"
                 )
             fps_idx = fps_idx.to(points.device)
