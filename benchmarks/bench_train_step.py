@@ -11,8 +11,9 @@ Lightning loop overhead). ``--impl reference`` runs the backbone's reference imp
 group conv, scatter-backward re-indexing, gather 3-NN upsampling: the code before the speed-up,
 ``arteq.equivariant.reference_ops``), ``fast`` the default. ``--old-tree DIR`` adds rows ``old``: the same
 step with the code and configs of another checkout (e.g. a ``git worktree`` of the commit before the
-speed-up), glibc allocator as is, in the same run, so that ratios are measured back to back. Reported: median seconds per step over
-``--steps`` steps after one warm-up step, steps/s, and peak RSS growth during the steps.
+speed-up), glibc allocator as is, in the same run, so that ratios are measured back to back. Reported:
+median seconds per step over ``--steps`` steps after one warm-up step, steps/s, and peak RSS growth
+during the steps.
 """
 
 from __future__ import annotations

@@ -67,7 +67,8 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     module = ArtEqModule.load_from_checkpoint(str(ckpt), map_location="cpu", weights_only=True)
     # test data on the checkpoint's body (the one it was trained on; conf's body_model is not used): a
     # copy of the module's, which the trainer moves to its device
-    datamodule = build_datamodule(cfg, body=copy.deepcopy(module.body))
+    # (data.fps_points: auto is resolved against the checkpoint's network)
+    datamodule = build_datamodule(cfg, body=copy.deepcopy(module.body), net=module.hparams.net)
     trainer = hydra.utils.instantiate(cfg.trainer, logger=False, callbacks=[])
     metrics = test_module(module, datamodule, trainer)
     out_dir = Path(cfg.output_dir) if cfg.get("output_dir") else default_output_dir(ckpt)

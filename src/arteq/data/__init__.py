@@ -1,7 +1,7 @@
 """Body-scan data: pose sources, synthetic scans (noisy non-uniform clouds) and the LightningDataModule."""
 
 from arteq.data.amass import AmassPoses, read_amass_npz
-from arteq.data.datamodule import BodyScanDataModule
+from arteq.data.datamodule import BodyScanDataModule, FpsCollate
 from arteq.data.dataset import BodyScanDataset, EpochSampler, TensorDictDataset
 from arteq.data.poses import (
     ID_FAMILIES,
@@ -20,6 +20,7 @@ __all__ = [
     "BodyScanDataModule",
     "BodyScanDataset",
     "EpochSampler",
+    "FpsCollate",
     "PoseSource",
     "SyntheticIDPoses",
     "SyntheticOODPoses",

@@ -14,6 +14,12 @@
   false``); the training stream is sharded by :class:`EpochSampler` (disjoint samples per rank), the
   fixed sets by :class:`ShardSampler` (no padding, no duplicates). Caches are created by local rank 0 in
   ``prepare_data`` while the other ranks wait.
+- FPS in the workers (``fps_points``): each batch also carries ``fps_idx [B, fps_points]``, the
+  backbone's farthest-point-sampling order of its clouds, computed by :class:`FpsCollate` in the loader
+  workers (in parallel with training) from the float32 points the network receives, with the backbone's
+  own function (:func:`arteq.geometry.pointops.fps_from_centroid`): the network uses them instead of its
+  sequential FPS loop (thousands of tiny kernels per step on a GPU) and its outputs are bit-identical.
+  Training stream and fixed sets alike (computed after loading: the cache format is unchanged).
 - Resume: the position in the training stream (epoch and batches done) is saved in checkpoints through
   ``state_dict`` and restored by ``load_state_dict``; a run resumed mid-epoch continues with exactly the
   samples an uninterrupted run would have seen next.
@@ -31,7 +37,7 @@ from typing import Any
 
 import lightning as L
 import torch
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, default_collate
 
 from arteq.body.factory import create_body
 from arteq.data.dataset import (
@@ -43,6 +49,7 @@ from arteq.data.dataset import (
     TensorDictDataset,
 )
 from arteq.data.poses import PoseSource, SyntheticIDPoses, SyntheticOODPoses
+from arteq.geometry.pointops import fps_from_centroid
 from arteq.paths import cache_dir
 
 log = logging.getLogger(__name__)
@@ -122,6 +129,68 @@ def body_fingerprint(body: torch.nn.Module) -> str:
     return h.hexdigest()
 
 
+class FpsCollate:
+    """Collate function: the default collation plus ``fps_idx [B, m]`` long, the FPS order of the batch's
+    clouds as the ArtEq backbone computes it (:func:`arteq.geometry.pointops.fps_from_centroid`: start at
+    the point nearest the centroid, float64 distances; on the CPU the batch-vectorised numpy loop). It runs
+    where the collation runs: in the loader workers when ``num_workers > 0``. Picklable (workers)."""
+
+    def __init__(self, m: int) -> None:
+        if not isinstance(m, int) or m < 1:
+            raise ValueError(f"FpsCollate: m must be an int >= 1, got {m!r}")
+        self.m = m
+
+    def __call__(self, items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+        batch = default_collate(items)
+        points = batch["points"]
+        if self.m > points.shape[1]:
+            raise ValueError(f"data.fps_points={self.m} is more than the {points.shape[1]} points per cloud")
+        threads = torch.get_num_threads()  # as in BodyScanDataset: small ops, one thread (main process)
+        if threads != 1:
+            torch.set_num_threads(1)
+        try:
+            batch["fps_idx"] = fps_from_centroid(points, self.m)
+        finally:
+            if threads != 1:
+                torch.set_num_threads(threads)
+        return batch
+
+    def __repr__(self) -> str:
+        return f"FpsCollate(m={self.m})"
+
+
+def resolve_fps_points(fps_points: int | str | None, net: Mapping[str, Any] | None, num_points: int) -> int:
+    """``data.fps_points`` as a number of FPS indices per cloud for the network config ``net``
+    (``model.net``): ``null`` / 0 -> 0 (off); ``auto`` -> what the ArtEq backbone needs for ``num_points``
+    points (the count after its first strided block, e.g. 2500 of 5000 with strides 2, 1, 2, 1), 0 for
+    another architecture or without a network config; an int -> itself, checked against the backbone
+    (at least what it needs; more is allowed, the extra columns are ignored)."""
+    if fps_points is None or fps_points == 0:
+        return 0
+    net = dict(_plain(net) or {})
+    arteq = net.get("arch", "arteq") == "arteq"
+    need = None
+    if net and arteq:
+        from arteq.equivariant.backbone import fps_size
+
+        need = fps_size((net.get("backbone") or {}).get("strides", (2, 1, 2, 1)), num_points)
+    if fps_points == "auto":
+        return need or 0
+    if isinstance(fps_points, bool) or not isinstance(fps_points, int) or fps_points < 0:
+        raise ValueError(f"data.fps_points must be null, auto or an int >= 0, got {fps_points!r}")
+    if net and not arteq:
+        raise ValueError(
+            f"data.fps_points={fps_points}: only the ArtEq backbone uses precomputed FPS indices "
+            f"(model.net.arch={net.get('arch')!r}); use null or auto"
+        )
+    if need is not None and fps_points < need:
+        raise ValueError(
+            f"data.fps_points={fps_points} is fewer than the {need} FPS indices the backbone needs for "
+            f"{num_points} points (use auto)"
+        )
+    return fps_points
+
+
 def _plain(x: Any) -> Any:
     try:
         from omegaconf import DictConfig, ListConfig, OmegaConf
@@ -155,6 +224,12 @@ class BodyScanDataModule(L.LightningDataModule):
         batch_size, eval_batch_size, num_workers: loaders.
         seed: base seed of every random stream.
         cache: cache the fixed sets on disk; ``cache_root`` overrides the folder.
+        fps_points: FPS indices per cloud computed in the loader workers and carried as the batch key
+            ``fps_idx`` (see module docstring): ``null`` / 0 = off, an int, or ``auto`` = as many as the
+            network's backbone needs. ``auto`` is resolved by :func:`arteq.training.build.build_datamodule`
+            (which knows ``model.net``; see :func:`resolve_fps_points`), or from ``net`` when given; a
+            datamodule built with neither takes ``auto`` as off.
+        net: the network config (``model.net``) that ``fps_points: auto`` is resolved against.
     """
 
     def __init__(
@@ -182,6 +257,8 @@ class BodyScanDataModule(L.LightningDataModule):
         seed: int = 0,
         cache: bool = True,
         cache_root: str | None = None,
+        fps_points: int | str | None = None,
+        net: Mapping[str, Any] | None = None,
     ) -> None:
         super().__init__()
         if source not in ("synthetic", "amass"):
@@ -195,6 +272,9 @@ class BodyScanDataModule(L.LightningDataModule):
             raise ValueError(f"data.num_points must be >= 1, got {num_points}")
         if not 0 <= noise_std < 0.05:
             raise ValueError(f"data.noise_std is in metres and must be in [0, 0.05), got {noise_std}")
+        self.fps_points = resolve_fps_points(fps_points, net, int(num_points))
+        if self.fps_points > num_points:
+            raise ValueError(f"data.fps_points={self.fps_points} is more than data.num_points={num_points}")
         self.source = source
         self.body_model_cfg = _plain(body_model)
         self.amass_root = amass_root
@@ -378,6 +458,7 @@ class BodyScanDataModule(L.LightningDataModule):
             num_workers=self.num_workers,
             pin_memory=torch.cuda.is_available(),
             persistent_workers=self.num_workers > 0,
+            collate_fn=FpsCollate(self.fps_points) if self.fps_points else None,
         )
 
     def _get(self, split: str) -> Dataset:

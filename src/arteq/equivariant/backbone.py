@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from arteq.geometry.pointops import centroid_nearest_index, farthest_point_sample, knn, three_nn_interpolate
+from arteq.geometry.pointops import fps_from_centroid, knn, three_nn_interpolate
 
 from .fast_ops import interpolate_csr, use_reference
 from .layers import DEFAULT_CHUNK_ELEMS, SeparableConvBlock
@@ -27,11 +27,16 @@ class EquivariantBackbone(nn.Module):
     every input point from the 3 nearest centres (inverse squared distance). Defaults are the paper's
     setting: 5000 -> 2500 -> 2500 -> 1250 -> 1250 points, channels 32, 32, 64, 64.
 
-    FPS: ``fps_idx`` (e.g. computed by data workers with ``compute_fps`` or
-    :func:`arteq.geometry.pointops.farthest_point_sample`) gives the sample order of the first strided
-    layer; it needs at least ``fps_size(N)`` columns (extra columns are ignored). If omitted, it is
-    computed in float64, starting from the point nearest the centroid so that the result does not
-    depend on pose, position or point order.
+    FPS: ``fps_idx`` gives the sample order of the first strided layer; it needs at least ``fps_size(N)``
+    columns (extra columns are ignored: FPS is prefix-consistent). If omitted, it is computed here in
+    float64, starting from the point nearest the centroid so that the result does not depend on pose,
+    position or point order. Data workers compute the same indices with
+    :func:`arteq.geometry.pointops.fps_from_centroid` (what ``compute_fps`` runs) on the CPU, in parallel
+    with training (``data.fps_points``, see :class:`arteq.data.FpsCollate`): on a GPU the FPS loop is
+    thousands of sequential kernel launches.
+    A given ``fps_idx`` is checked for shape and dtype; its range only when it is on the CPU (reading
+    its min / max on an accelerator would be a host-device sync; the data path's indices are valid by
+    construction and move to the device after that check).
 
     Equivariance convention (relied upon by the heads): if the input is rotated by group element ``j``
     (``points @ R_j.T``), then ``out_rot[:, :, a] == out[:, :, cayley[inverse[j], a]]``: the feature at
@@ -96,23 +101,15 @@ class EquivariantBackbone(nn.Module):
 
     def point_counts(self, n_points: int) -> list[int]:
         """Number of points after each block for an input of ``n_points``."""
-        counts, m = [], n_points
-        for s in self.strides:
-            m = m // s
-            counts.append(m)
-        return counts
+        return point_counts(self.strides, n_points)
 
     def fps_size(self, n_points: int) -> int:
         """Columns of ``fps_idx`` needed for ``n_points`` input points (0 if no block is strided)."""
-        counts = self.point_counts(n_points)
-        return next((c for c, s in zip(counts, self.strides) if s > 1), 0)
+        return fps_size(self.strides, n_points)
 
     def compute_fps(self, points: torch.Tensor) -> torch.Tensor:
         """FPS order ``[B, fps_size(N)]`` from the point nearest the centroid (float64, no grad)."""
-        m = self.fps_size(points.shape[1])
-        if m == 0:
-            return torch.zeros(points.shape[0], 0, dtype=torch.long, device=points.device)
-        return farthest_point_sample(points, m, start=centroid_nearest_index(points))
+        return fps_from_centroid(points, self.fps_size(points.shape[1]))
 
     def forward(self, points: torch.Tensor, fps_idx: torch.Tensor | None = None) -> torch.Tensor:
         if not isinstance(points, torch.Tensor) or points.dim() != 3 or points.shape[-1] != 3:
@@ -138,9 +135,18 @@ class EquivariantBackbone(nn.Module):
                     f"EquivariantBackbone: fps_idx must be [B={b}, >={need}] for N={n}, "
                     f"got {tuple(fps_idx.shape)}"
                 )
-            if fps_idx.dtype != torch.long or int(fps_idx.min()) < 0 or int(fps_idx.max()) >= n:
-                raise ValueError(f"EquivariantBackbone: fps_idx must be long indices in [0, {n})")
-            fps_idx = fps_idx[:, :need].to(points.device)
+            if fps_idx.dtype != torch.long:
+                raise ValueError(
+                    f"EquivariantBackbone: fps_idx must be long indices (int64), got {fps_idx.dtype}"
+                )
+            fps_idx = fps_idx[:, :need]
+            # range check on the CPU only (on an accelerator min / max would be a host-device sync)
+            if fps_idx.device.type == "cpu" and (int(fps_idx.min()) < 0 or int(fps_idx.max()) >= n):
+                raise ValueError(
+                    f"EquivariantBackbone: fps_idx must be long indices in [0, {n}), got values in "
+                    f"[{int(fps_idx.min())}, {int(fps_idx.max())}]"
+                )
+            fps_idx = fps_idx.to(points.device)
         xyz = points
         feats = None  # the constant input 1 (see SeparableConvBlock.forward)
         downsampled = False
@@ -158,6 +164,22 @@ class EquivariantBackbone(nn.Module):
         if use_reference():
             return three_nn_interpolate(points, xyz, feats)
         return upsample_3nn(points, xyz, feats)
+
+
+def point_counts(strides: Sequence[int], n_points: int) -> list[int]:
+    """Number of points after each block of a backbone with ``strides`` for ``n_points`` input points."""
+    counts, m = [], int(n_points)
+    for s in strides:
+        m = m // int(s)
+        counts.append(m)
+    return counts
+
+
+def fps_size(strides: Sequence[int], n_points: int) -> int:
+    """FPS indices a backbone with ``strides`` needs for ``n_points`` input points: the point count after
+    its first strided block (0 if no block is strided)."""
+    counts = point_counts(strides, n_points)
+    return next((c for c, s in zip(counts, strides) if int(s) > 1), 0)
 
 
 def upsample_3nn(

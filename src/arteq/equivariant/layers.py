@@ -243,7 +243,8 @@ class SeparableConvBlock(nn.Module):
         )
         out = F.leaky_relu(instance_norm(out), 0.01)
         # Gather form under autocast: it only permutes group elements, so bfloat16 / float16 rounding commutes
-        # with the group action (the Fourier form mixes all 60, and its rounding measurably breaks equivariance).
+        # with the group action (the Fourier form mixes all 60, and its rounding measurably breaks
+        # equivariance).
         if use_reference() or torch.is_autocast_enabled(out.device.type):
             gidx = self.gconv_index
             step = max(1, self.chunk_elems // (b * GROUP_SIZE * gidx.shape[1] * self.c_out))

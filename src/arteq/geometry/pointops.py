@@ -104,6 +104,16 @@ def centroid_nearest_index(xyz: torch.Tensor) -> torch.Tensor:
     return (x - x.mean(1, keepdim=True)).square().sum(-1).argmin(-1)
 
 
+def fps_from_centroid(xyz: torch.Tensor, m: int) -> torch.Tensor:
+    """FPS order ``[B, m]`` starting from the point nearest each cloud's centroid: the backbone's FPS
+    (:meth:`arteq.equivariant.EquivariantBackbone.compute_fps`), also run by data workers on the float32
+    batch the network receives (same function, same float64 arithmetic, hence the same indices).
+    ``m = 0`` gives an empty ``[B, 0]``."""
+    if m == 0:
+        return torch.zeros(xyz.shape[0], 0, dtype=torch.long, device=xyz.device)
+    return farthest_point_sample(xyz, m, start=centroid_nearest_index(xyz))
+
+
 def _knn_torch(q: torch.Tensor, r: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
     b, m, _ = q.shape
     n = r.shape[1]

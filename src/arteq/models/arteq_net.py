@@ -27,6 +27,9 @@ class ArtEqNet(nn.Module):
     All arguments are plain values so that the configuration round-trips through checkpoints.
     """
 
+    #: ``forward`` takes precomputed FPS indices (``fps_idx``); ArtEqModule passes a batch's to such nets.
+    accepts_fps_idx = True
+
     def __init__(
         self,
         backbone: dict[str, Any] | None = None,
@@ -54,6 +57,7 @@ class ArtEqNet(nn.Module):
         self,
         points: torch.Tensor,
         gt_labels: torch.Tensor | None = None,
+        fps_idx: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Predict parts, rotations and betas.
 
@@ -61,6 +65,9 @@ class ArtEqNet(nn.Module):
             points: ``[B, N, 3]`` cloud in metres (any translation; the network sees relative positions).
             gt_labels: ``[B, N]`` part labels; when given (stage 1) they replace the predicted part
                 probabilities in the part pooling.
+            fps_idx: ``[B, >=M]`` long, the backbone's FPS order precomputed (e.g. by the data workers,
+                ``data.fps_points``); ``None``: the backbone computes it (same indices, see
+                :class:`arteq.equivariant.EquivariantBackbone`).
         Returns:
             dict with ``seg_logits [B,N,K]``, ``part_probs [B,N,K]``, ``pool_weights [B,N,K]`` (what was
             used for pooling), ``global_rotmats [B,K,3,3]``, ``rot_mean [B,K,3,3]`` (weighted chordal
@@ -71,7 +78,7 @@ class ArtEqNet(nn.Module):
             raise ValueError(f"points must be [B, N, 3], got {tuple(points.shape)}")
         if points.shape[1] == 0:
             raise ValueError("points: empty cloud (N = 0)")
-        feats = self.backbone(points)  # [B, N, A, C]
+        feats = self.backbone(points, fps_idx=fps_idx)  # [B, N, A, C]
         seg_logits = self.segmenter(feats.mean(dim=2))
         # probabilities in float32 at least (under mixed precision the logits may be bfloat16)
         part_probs = torch.softmax(seg_logits, dim=-1, dtype=upcast(seg_logits).dtype)

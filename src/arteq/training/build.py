@@ -11,6 +11,8 @@ its body to its device).
 from __future__ import annotations
 
 import copy
+from collections.abc import Mapping
+from typing import Any
 
 import hydra
 import lightning as L
@@ -27,12 +29,17 @@ def build_body(cfg: DictConfig) -> BodyModel:
     return create_body(cfg.body_model)
 
 
-def build_datamodule(cfg: DictConfig, body: nn.Module | None = None) -> L.LightningDataModule:
+def build_datamodule(
+    cfg: DictConfig, body: nn.Module | None = None, net: Mapping[str, Any] | None = None
+) -> L.LightningDataModule:
     """The configured :class:`arteq.data.BodyScanDataModule` (``cfg.data``) on ``body``, or on a body
-    built from ``cfg.body_model`` when none is given."""
+    built from ``cfg.body_model`` when none is given. ``net`` (default ``cfg.model.net``) is the network
+    the batches are for: ``data.fps_points: auto`` is resolved against it."""
     if body is None:
         body = OmegaConf.to_container(cfg.body_model, resolve=True)
-    return hydra.utils.instantiate(cfg.data, body_model=body)
+    if net is None and cfg.get("model") is not None:
+        net = OmegaConf.to_container(cfg.model.net, resolve=True)
+    return hydra.utils.instantiate(cfg.data, body_model=body, net=net)
 
 
 def build_module(cfg: DictConfig, stage: int, body: nn.Module | None = None) -> ArtEqModule:

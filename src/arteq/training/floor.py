@@ -33,6 +33,7 @@ def evaluate_mean_pose(
     when not given).
     """
     dm = build_datamodule(cfg, body)
+    dm.fps_points = 0  # no network here: batches without precomputed FPS indices
     body = dm.body
     # the training poses without rotation augmentation: with so3 augmentation the mean root
     # orientation would be meaningless, and this floor is about the pose distribution itself

@@ -34,6 +34,16 @@ def marker_vertices(template: np.ndarray, count: int) -> np.ndarray:
     return np.asarray(chosen)
 
 
+def batch_fps_idx(batch: Mapping[str, torch.Tensor]) -> torch.Tensor | None:
+    """A batch's precomputed FPS indices (``data.fps_points``), or ``None`` when it has none or its points
+    are no longer the float32 clouds they were computed from (a ``*-true`` half-precision trainer
+    converts the batch: the network then samples the rounded points itself)."""
+    fps_idx = batch.get("fps_idx")
+    if fps_idx is None or batch["points"].dtype != torch.float32:
+        return None
+    return fps_idx
+
+
 def _plain(x: Any) -> Any:
     """Convert OmegaConf containers to plain Python (checkpoints must load with weights_only=True)."""
     try:
@@ -121,13 +131,22 @@ class ArtEqModule(L.LightningModule):
         self.test_results: dict[str, dict[str, Any]] = {}
 
     # ------------------------------------------------------------------ inference
-    def forward(self, points: torch.Tensor, gt_labels: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self, points: torch.Tensor, gt_labels: torch.Tensor | None = None, fps_idx: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         """Full prediction for a batch of clouds ``[B, N, 3]`` (metres, any placement).
+
+        ``fps_idx``: the backbone's FPS order precomputed by the data workers (a batch's ``fps_idx``, see
+        ``data.fps_points``); the same indices the network would compute, so the outputs are the same.
+        Ignored by networks that do not take it (the PointNet++ baseline).
 
         Returns the network outputs plus ``vertices [B,V,3]``, ``joints [B,22,3]`` and ``transl [B,3]``
         of the fitted body, in the frame of ``points``.
         """
-        pred = self.net(points, gt_labels=gt_labels)
+        if fps_idx is not None and getattr(self.net, "accepts_fps_idx", False):
+            pred = self.net(points, gt_labels=gt_labels, fps_idx=fps_idx)
+        else:
+            pred = self.net(points, gt_labels=gt_labels)
         with full_precision(points):  # the body model (LBS) and placement in float32 at least
             body = self.body(betas=upcast(pred["betas"]), pose=upcast(pred["local_rotmats"]))
             transl = estimate_translation(body.vertices, self.centroid_matrix, points, pred["pool_weights"])
@@ -145,7 +164,9 @@ class ArtEqModule(L.LightningModule):
     # ------------------------------------------------------------------ steps
     def _step(self, batch: Mapping[str, torch.Tensor], use_gt_parts: bool):
         gt = self.ground_truth(batch)
-        pred = self(batch["points"], gt_labels=batch["labels"] if use_gt_parts else None)
+        pred = self(
+            batch["points"], gt_labels=batch["labels"] if use_gt_parts else None, fps_idx=batch_fps_idx(batch)
+        )
         with full_precision(batch["points"]):  # losses in float32 at least, also under mixed precision
             pred32 = {k: upcast(v) for k, v in pred.items()}
             losses = arteq_losses(pred32, gt, self.hparams.loss_weights, self.vertex_weights)

@@ -153,6 +153,11 @@ def validate_data(cfg: DictConfig, processes: int | None = None) -> None:
         sizes[key] = _int_at_least(cfg, f"data.{key}", 1, allow_none=not synthetic)
     batch = _int_at_least(cfg, "data.batch_size", 1)
     _int_at_least(cfg, "data.num_workers", 0)
+    fps = _get(cfg, "data.fps_points")
+    if not (fps is None or fps == "auto" or (_is_int(fps) and 0 <= fps <= _get(cfg, "data.num_points"))):
+        raise ConfigError(
+            "data.fps_points", fps, "null | auto | an integer in 0..data.num_points (FPS indices per cloud)"
+        )
     eval_batch = _int_at_least(cfg, "data.eval_batch_size", 1, allow_none=True)
     procs = processes or 1
     if sizes["train_size"] is not None and batch > sizes["train_size"] // procs:
@@ -200,7 +205,18 @@ def validate_model(cfg: DictConfig) -> None:
                 f"strides whose product is at most data.num_points={n} (these leave {counts} points; "
                 f"their product {most} needs data.num_points >= {most})",
             )
+        fps = _get(cfg, "data.fps_points")
+        need = next((c for c, s in zip(counts, strides) if s > 1), 0)
+        if _is_int(fps) and 0 < fps < need:
+            raise ConfigError(
+                "data.fps_points", fps, f"null | auto | an integer >= {need} (what the backbone needs)"
+            )
     else:
+        fps = _get(cfg, "data.fps_points")
+        if _is_int(fps) and fps > 0:
+            raise ConfigError(
+                "data.fps_points", fps, f"null | auto (only the ArtEq backbone uses it, not {arch})"
+            )
         npoints = _get(cfg, "model.net.npoints", [])
         prev = n
         for i, m in enumerate(npoints):
