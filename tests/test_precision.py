@@ -21,14 +21,9 @@ from hydra import compose, initialize_config_dir
 from arteq.equivariant import group_rotations
 from arteq.geometry.rotations import geodesic_deg
 from arteq.training.module import ArtEqModule
+from conftest import TINY_NET
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
-TINY_NET = {
-    "backbone": {"channels": [8, 8, 8, 8], "neighbours": [16, 8, 16, 8], "kernel": "ico13"},
-    "segmenter": {"hidden": 32},
-    "pose_head": {"dim": 32, "heads": 4, "mlp_hidden": 32},
-    "shape_head": {"dim": 32, "heads": 4, "mlp_hidden": 32},
-}
 TINY = [
     "data.num_points=128", "data.val_size=2", "data.test_size=2", "data.batch_size=2", "data.num_workers=0",
     "trainer.max_epochs=1", "trainer.enable_progress_bar=false", "trainer.log_every_n_steps=1",
