@@ -96,3 +96,28 @@ def test_backbone_fast_equals_reference_in_float64(kernel):
     assert (y_ref - y_fast).abs().max() <= 1e-12 * y_ref.abs().max()
     for a, b in zip(g_ref, g_fast):
         assert (a - b).abs().max() <= 1e-11 * max(a.abs().max(), 1e-30)
+
+
+def test_caches_built_in_inference_mode_still_train():
+    """Constant tables first built under inference_mode (a validation loop, arteq-fit) must not break a
+    later training step in the same process."""
+    from arteq.body import skeleton
+    from arteq.equivariant import fast_ops, group
+
+    cached = [group._tables, group._unit_kernel, group._kernel_perm, fast_ops._irreps,
+              fast_ops._fourier_tables, skeleton._parent_index]  # fmt: skip
+    for fn in cached:
+        fn.cache_clear()
+    fast_ops._DEVICE_CACHE.clear()
+    x = torch.randn(1, 2, 60, 3)
+    w = torch.randn(13 * 3, 4)
+    rots = torch.eye(3).expand(1, 22, 3, 3)
+    with torch.inference_mode():
+        fast_ops.group_conv_fourier(x, w)
+        skeleton.global_to_local(rots)
+    w.requires_grad_(True)
+    fast_ops.group_conv_fourier(x, w).sum().backward()
+    assert w.grad is not None and torch.isfinite(w.grad).all()
+    r = rots.clone().requires_grad_(True)
+    skeleton.global_to_local(r).sum().backward()
+    assert r.grad is not None

@@ -6,9 +6,9 @@ Order and parent table are SMPL's first 22 joints (pelvis .. wrists). SMPL's han
 
 from __future__ import annotations
 
-import functools
-
 import torch
+
+from arteq.tensor_cache import tensor_cache
 
 JOINT_NAMES: tuple[str, ...] = (
     "pelvis",
@@ -64,7 +64,7 @@ def global_to_local(global_rotmats: torch.Tensor, parents: tuple[int, ...] = PAR
     return torch.cat([global_rotmats[..., :1, :, :], local[..., 1:, :, :]], dim=-3)
 
 
-@functools.lru_cache(maxsize=16)
+@tensor_cache(maxsize=16)
 def _parent_index(parents: tuple[int, ...], device: torch.device) -> torch.Tensor:
     """Parent index tensor on ``device``, built once: a fresh host-to-GPU copy on every call would make
     the training step wait for the GPU (a blocking copy synchronises the stream)."""

@@ -27,9 +27,10 @@ import contextlib
 import math
 import warnings
 from collections.abc import Iterator
-from functools import lru_cache
 
 import torch
+
+from arteq.tensor_cache import tensor_cache
 
 from .group import GROUP_SIZE, _tables
 
@@ -73,7 +74,7 @@ def _classes() -> torch.Tensor:
     return cls
 
 
-@lru_cache(maxsize=1)
+@tensor_cache(maxsize=1)
 def _irreps() -> tuple[tuple[int, torch.Tensor], ...]:
     """Real orthogonal irreps ``((d, rho [60, d, d]), ...)`` in float64, dimensions 1, 3, 3, 4, 5."""
     t = _tables()
@@ -113,7 +114,7 @@ def _irreps() -> tuple[tuple[int, torch.Tensor], ...]:
     return tuple(out)
 
 
-@lru_cache(maxsize=1)
+@tensor_cache(maxsize=1)
 def _fourier_tables() -> tuple[torch.Tensor, tuple[int, ...], tuple[torch.Tensor, ...]]:
     """``Q [60, 60]`` (float64, orthogonal), irrep dims, and ``rho(H) [13, d, d]`` per irrep."""
     nbr = _tables()["neighbourhood"]
@@ -138,12 +139,17 @@ def fourier_basis(
     q, dims, rho_h = _fourier_tables()
     key = (dtype, torch.device(device) if device is not None else torch.device("cpu"))
     if key not in _DEVICE_CACHE:
-        _DEVICE_CACHE[key] = (
-            q.to(dtype=dtype, device=key[1]),
-            tuple(r.to(dtype=dtype, device=key[1]) for r in rho_h),
-        )
+        _DEVICE_CACHE[key] = _on_device(q, rho_h, dtype, key[1])
     qq, rr = _DEVICE_CACHE[key]
     return qq, dims, rr
+
+
+def _on_device(q, rho_h, dtype, device):
+    with torch.inference_mode(False):  # cached: never an inference tensor (see arteq.tensor_cache)
+        return (
+            q.to(dtype=dtype, device=device),
+            tuple(r.to(dtype=dtype, device=device) for r in rho_h),
+        )
 
 
 def group_conv_fourier(x: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:

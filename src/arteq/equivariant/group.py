@@ -24,9 +24,10 @@ Conventions
 from __future__ import annotations
 
 import math
-from functools import cache, lru_cache
 
 import torch
+
+from arteq.tensor_cache import tensor_cache
 
 GROUP_SIZE = 60
 KERNEL_KINDS = ("paper24", "ico13", "ico33")
@@ -52,7 +53,7 @@ def _match(mats: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
     return idx.reshape(mats.shape[:-2])
 
 
-@lru_cache(maxsize=1)
+@tensor_cache(maxsize=1)
 def _tables() -> dict[str, torch.Tensor]:
     gens = [_axis_angle((0.0, 1.0, _PHI), 2 * math.pi / 5), _axis_angle((1.0, 1.0, 1.0), 2 * math.pi / 3)]
     elems = [torch.eye(3, dtype=torch.float64)]
@@ -166,7 +167,7 @@ def _cyclic(v: list[tuple[float, float, float]]) -> list[tuple[float, float, flo
     return [p for x, y, z in v for p in ((x, y, z), (y, z, x), (z, x, y))]
 
 
-@cache
+@tensor_cache()
 def _unit_kernel(kind: str) -> torch.Tensor:
     if kind == "paper24":
         pts = _fibonacci_sphere(23)
@@ -198,7 +199,7 @@ def kernel_points(
     return (_unit_kernel(kind) * radius).to(dtype)
 
 
-@cache
+@tensor_cache()
 def _kernel_perm(kind: str) -> torch.Tensor | None:
     k = _unit_kernel(kind)
     rk = torch.einsum("aij,nj->ani", _tables()["rotations"], k)  # [60, J, 3]
