@@ -7,6 +7,7 @@ Tests take them as fixtures (``tiny_net``, ``tiny_overrides``, ``tiny_pn2_overri
 from __future__ import annotations
 
 import copy
+import os
 from pathlib import Path
 
 import pytest
@@ -14,6 +15,18 @@ import pytest
 import arteq  # noqa: F401  (registers the resolvers conf/ uses)
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def subprocess_env() -> dict[str, str]:
+    """Environment for a training subprocess: this checkout's sources, 1 thread, no inherited rank/plan."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), str(ROOT / "tests")])
+    env.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    env.pop("LOCAL_RANK", None)
+    env.pop("ARTEQ_RUN_PLAN", None)
+    return env
+
 
 #: ArtEqNet keyword arguments of a tiny network (seconds per step on a CPU).
 TINY_NET = {

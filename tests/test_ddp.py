@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 import torch
+
+from conftest import subprocess_env
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = [
@@ -41,15 +42,6 @@ TINY = [
 ]
 
 
-def _env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), str(ROOT / "tests")])
-    env.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    env.pop("LOCAL_RANK", None)
-    env.pop("ARTEQ_RUN_PLAN", None)
-    return env
-
-
 def _train_cmd(tmp_path: Path, *extra: str) -> list[str]:
     return [
         sys.executable, "-m", "arteq.train", "+experiment=stage1", *TINY,
@@ -63,7 +55,7 @@ def test_two_process_ddp_run(tmp_path):
         tmp_path, "trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2", f"paths.output_dir={run}",
         f"hydra.run.dir={run}", "+callbacks.record._target_=helpers.record.RecordBatches",
     )  # fmt: skip
-    proc = subprocess.run(cmd, cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(cmd, cwd=ROOT, env=subprocess_env(), capture_output=True, text=True, timeout=600)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-4000:]
 

@@ -15,6 +15,8 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
+from conftest import subprocess_env
+
 ROOT = Path(__file__).resolve().parents[1]
 EVERY = 3  # step checkpoint interval
 TINY = [
@@ -52,15 +54,6 @@ def _cfg(tmp_path: Path, *extra: str):
         )  # fmt: skip
 
 
-def _env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), str(ROOT / "tests")])
-    env.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    env.pop("LOCAL_RANK", None)
-    env.pop("ARTEQ_RUN_PLAN", None)
-    return env
-
-
 def _step(path: Path) -> int:
     return int(torch.load(path, map_location="cpu", weights_only=True)["global_step"])
 
@@ -80,7 +73,9 @@ def test_sigkill_mid_epoch_then_resume_auto(tmp_path):
     # the same run, killed with SIGKILL in the middle of epoch 1 right after a step checkpoint
     cmd = [sys.executable, "-m", "arteq.train", "+experiment=stage1", *TINY,
            f"paths.output_root={tmp_path / 'out'}", f"data.cache_root={tmp_path / 'cache'}"]  # fmt: skip
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        cmd, cwd=ROOT, env=subprocess_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
     killed_after = None
     deadline = time.time() + 300
     try:
