@@ -65,6 +65,17 @@ def _train_batches(record_file: Path) -> list[tuple[int, torch.Tensor]]:
 def test_sigkill_mid_epoch_then_resume_auto(tmp_path):
     from arteq.train import train
 
+    # Same thread count as the subprocess (subprocess_env: 1 thread): float sums in a different thread
+    # split round differently, and the weights are compared bit for bit.
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        _killed_and_resumed_run_matches_uninterrupted(tmp_path, train)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _killed_and_resumed_run_matches_uninterrupted(tmp_path, train):
     # reference: the uninterrupted run
     ref = train(_cfg(tmp_path, f"paths.output_dir={tmp_path / 'ref'}"))
     ref_batches = _train_batches(tmp_path / "ref" / "record_rank0.pt")
