@@ -74,9 +74,50 @@ def _classes() -> torch.Tensor:
     return cls
 
 
+@contextlib.contextmanager
+def _one_thread() -> Iterator[None]:
+    """LAPACK's results (eigenvectors inside degenerate eigenspaces above all) depend on the thread
+    count; the constant tables are built on one thread, so a process builds the same ones whatever
+    its thread setting when they are first needed."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
+
+
+def _canonical_basis(u: torch.Tensor) -> torch.Tensor:
+    """An orthonormal basis ``[60, d]`` of the span of ``u`` that depends only on that subspace, not
+    on the basis ``u`` an eigensolver returned: Gram-Schmidt of the orthogonal projector's columns,
+    in order, keeping those clearly independent of the ones kept before."""
+    d = u.shape[1]
+    proj = u @ u.T
+    out: list[torch.Tensor] = []
+    for x in range(proj.shape[1]):
+        v = proj[:, x].clone()
+        for _ in range(2):  # twice: orthogonal to rounding
+            for w in out:
+                v = v - (w @ v) * w
+        if float(v.norm()) > 0.5 * float(proj[x, x].clamp_min(0).sqrt()):
+            out.append(v / v.norm())
+            if len(out) == d:
+                return torch.stack(out, 1)
+    raise RuntimeError("icosahedral group: could not build a basis of an irreducible subspace")
+
+
 @tensor_cache(maxsize=1)
 def _irreps() -> tuple[tuple[int, torch.Tensor], ...]:
-    """Real orthogonal irreps ``((d, rho [60, d, d]), ...)`` in float64, dimensions 1, 3, 3, 4, 5."""
+    """Real orthogonal irreps ``((d, rho [60, d, d]), ...)`` in float64, dimensions 1, 3, 3, 4, 5.
+
+    The same tables in every process on a machine, whatever the thread count (one thread, and a basis
+    fixed by its subspace): a float32 group convolution in another basis of the same irrep is the same
+    linear map but rounds differently, and a run resumed in a new process must continue bit for bit."""
+    with _one_thread():
+        return _build_irreps()
+
+
+def _build_irreps() -> tuple[tuple[int, torch.Tensor], ...]:
     t = _tables()
     cayley = t["cayley"]
     # left regular representation: L(g) e_y = e_{g y}
@@ -104,7 +145,7 @@ def _irreps() -> tuple[tuple[int, torch.Tensor], ...]:
             )
         ev, vec = torch.linalg.eigh(basis.T @ sym @ basis)
         # one eigenvalue of multiplicity d = one minimal left-invariant subspace
-        u = basis @ vec[:, :d]
+        u = _canonical_basis(basis @ vec[:, :d])
         if float((ev[:d] - ev[0]).abs().max()) > 1e-8 * max(1.0, float(ev.abs().max())):
             raise RuntimeError("icosahedral group: degenerate split of an isotypic component")
         rho = torch.einsum("xi,gxy,yj->gij", u, left, u)  # [60, d, d]
