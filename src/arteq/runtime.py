@@ -5,13 +5,34 @@ default) to the kernel, so each large temporary of a training step is page-fault
 the 2-core machine, one backbone forward + backward took 270-360 k minor faults and 0.7-0.9 s of kernel
 time. Raising the threshold and the trim threshold keeps freed memory in the process (peak memory is
 unchanged; the memory is reused). No-op where glibc's ``mallopt`` is unavailable or ``ARTEQ_MALLOC_TUNE=0``.
+
+:func:`one_thread`: run a block with one intra-op thread (small per-sample ops; LAPACK results that must
+not depend on the thread count), restoring the previous count.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import os
+from collections.abc import Iterator
+
+
+@contextlib.contextmanager
+def one_thread() -> Iterator[None]:
+    """Run the block with ``torch.set_num_threads(1)``, then restore the previous thread count."""
+    import torch
+
+    threads = torch.get_num_threads()
+    if threads != 1:
+        torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        if threads != 1:
+            torch.set_num_threads(threads)
+
 
 _M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3
 _TUNED = False

@@ -51,6 +51,7 @@ from arteq.data.dataset import (
 from arteq.data.poses import PoseSource, SyntheticIDPoses, SyntheticOODPoses
 from arteq.geometry.pointops import fps_from_centroid
 from arteq.paths import cache_dir
+from arteq.runtime import one_thread
 
 log = logging.getLogger(__name__)
 CACHE_VERSION = 2
@@ -145,14 +146,8 @@ class FpsCollate:
         points = batch["points"]
         if self.m > points.shape[1]:
             raise ValueError(f"data.fps_points={self.m} is more than the {points.shape[1]} points per cloud")
-        threads = torch.get_num_threads()  # as in BodyScanDataset: small ops, one thread (main process)
-        if threads != 1:
-            torch.set_num_threads(1)
-        try:
+        with one_thread():  # as in BodyScanDataset: small ops, one thread (main process)
             batch["fps_idx"] = fps_from_centroid(points, self.m)
-        finally:
-            if threads != 1:
-                torch.set_num_threads(threads)
         return batch
 
     def __repr__(self) -> str:

@@ -26,6 +26,7 @@ from torch.utils.data import Dataset, Sampler
 from arteq.data.poses import PoseSource
 from arteq.geometry.rotations import euler_to_rotmat, random_rotmat
 from arteq.geometry.sampling import interpolate_labels, sample_surface, smooth_density_field
+from arteq.runtime import one_thread
 
 AUGMENTS = ("none", "so3", "z")
 SAMPLE_KEYS = ("points", "labels", "pose", "global_rotmats", "betas", "transl", "center")
@@ -109,15 +110,8 @@ class BodyScanDataset(Dataset):
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         # Per-sample tensors are small: one intra-op thread is much faster than several competing
         # ones (20x on a busy 2-core machine). DataLoader workers already run with one thread.
-        threads = torch.get_num_threads()
-        if threads != 1:
-            torch.set_num_threads(1)
-        try:
-            with torch.no_grad():
-                return self._make(index)
-        finally:
-            if threads != 1:
-                torch.set_num_threads(threads)
+        with one_thread(), torch.no_grad():
+            return self._make(index)
 
     def source_sample(self, index: int) -> dict:
         """The pose source's raw sample behind ``self[index]`` (before rotation augmentation)."""

@@ -30,6 +30,7 @@ from collections.abc import Iterator
 
 import torch
 
+from arteq.runtime import one_thread
 from arteq.tensor_cache import tensor_cache
 
 from .group import GROUP_SIZE, _tables
@@ -74,19 +75,6 @@ def _classes() -> torch.Tensor:
     return cls
 
 
-@contextlib.contextmanager
-def _one_thread() -> Iterator[None]:
-    """LAPACK's results (eigenvectors inside degenerate eigenspaces above all) depend on the thread
-    count; the constant tables are built on one thread, so a process builds the same ones whatever
-    its thread setting when they are first needed."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(n)
-
-
 def _canonical_basis(u: torch.Tensor) -> torch.Tensor:
     """An orthonormal basis ``[60, d]`` of the span of ``u`` that depends only on that subspace, not
     on the basis ``u`` an eigensolver returned: Gram-Schmidt of the orthogonal projector's columns,
@@ -113,7 +101,7 @@ def _irreps() -> tuple[tuple[int, torch.Tensor], ...]:
     The same tables in every process on a machine, whatever the thread count (one thread, and a basis
     fixed by its subspace): a float32 group convolution in another basis of the same irrep is the same
     linear map but rounds differently, and a run resumed in a new process must continue bit for bit."""
-    with _one_thread():
+    with one_thread():  # LAPACK's eigenvectors depend on the thread count
         return _build_irreps()
 
 
