@@ -26,7 +26,7 @@ def perturbed(args) -> None:
     from arteq.body import load_body_model
     from arteq.data.dataset import BodyScanDataset
     from arteq.data.poses import SyntheticIDPoses, SyntheticOODPoses
-    from arteq.fitting.refine import RefineConfig, refine
+    from arteq.fit.refine import RefineConfig, refine
 
     body = load_body_model("anny22")
     cfg = RefineConfig(iters=args.iters)
@@ -79,7 +79,7 @@ def perturbed(args) -> None:
 def network(args) -> None:
     from arteq.data import BodyScanDataModule
     from arteq.fit.api import Fitter
-    from arteq.fitting.refine import RefineConfig
+    from arteq.fit.refine import RefineConfig
 
     rows = []
     for refine_on in (False, True):

@@ -272,7 +272,7 @@ def test_api_and_command_agree(tiny_ckpt, body, tmp_path):
                    "--iters", "4", "--device", "cpu", "--no-preview"])  # fmt: skip
     assert rc == 0 and not (out / "scan.png").exists()
     from arteq.fit import fit_points
-    from arteq.fitting.refine import RefineConfig
+    from arteq.fit.refine import RefineConfig
 
     f = Fitter(ckpt=tiny_ckpt, device="cpu", points=800, refine_config=RefineConfig(iters=4), check=False)
     res = fit_points(s["points"], fitter=f)

@@ -1,4 +1,4 @@
-"""Refinement (arteq.fitting.refine) and the single-body check (arteq.fitting.quality), from starts the
+"""Refinement (arteq.fit.refine) and the single-body check (arteq.fit.quality), from starts the
 test controls: the ground truth perturbed, with a stated fraction of wrong part labels."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import roma
 import torch
 
 from arteq.fit.demo import synthetic_scan
-from arteq.fitting.quality import fit_quality
-from arteq.fitting.refine import (
+from arteq.fit.quality import fit_quality
+from arteq.fit.refine import (
     RefineConfig,
     _KDTreeMatcher,
     _TorchMatcher,

@@ -4,9 +4,9 @@ import pytest
 import roma
 import torch
 
-from arteq.fitting import chamfer_terms, fit_body, root_candidates
 from arteq.geometry.pointops import farthest_point_sample
 from arteq.geometry.rotations import geodesic_deg
+from arteq.optim_fit import chamfer_terms, fit_body, root_candidates
 
 
 @pytest.fixture(scope="module")

@@ -13,8 +13,8 @@ import torch
 
 from arteq.body import load_body_model
 from arteq.fit.demo import synthetic_scan
-from arteq.fitting.quality import fit_quality
-from arteq.fitting.refine import RefineConfig, body_tables, refine
+from arteq.fit.quality import fit_quality
+from arteq.fit.refine import RefineConfig, body_tables, refine
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--n", type=int, default=6)

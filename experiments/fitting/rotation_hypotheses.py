@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 
 from arteq.data import BodyScanDataModule
 from arteq.fit.api import Fitter, resample
-from arteq.fitting.refine import RefineConfig, refine
+from arteq.fit.refine import RefineConfig, refine
 
 
 def score(scan: torch.Tensor, verts: torch.Tensor, subset: torch.Tensor) -> torch.Tensor:

@@ -1,7 +1,7 @@
 """Collect runs into the paper's tables and plots: ``python -m arteq.report DIR... [--out DIR]``.
 
 Every folder under the given ones that holds a ``metrics.json`` is a run (training runs of
-``python -m arteq.train``, sweep jobs, and fitter evaluations of ``python -m arteq.fitting.evaluate``).
+``python -m arteq.train``, sweep jobs, and fitter evaluations of ``python -m arteq.optim_fit.evaluate``).
 Its config comes from ``metrics.json["config"]`` (else ``.hydra/config.yaml``), its curves from
 ``csv/metrics.csv``. Method names come from the config: architecture (ArtEq / PointNet++), ``nc``
 without parent conditioning, ``+ SO(3) aug`` / ``+ z aug`` with training augmentation; the point count

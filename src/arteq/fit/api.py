@@ -2,8 +2,8 @@
 
 A scan's path: ``arteq.io.scans`` reads it -> units to metres, size check, centring (float64) ->
 resampling to the network's point count -> the ArtEq network (parts, rotations, shape; translation by
-centroids) -> optional refinement (``arteq.fitting.refine``) -> quality check
-(``arteq.fitting.quality``) -> everything mapped back to the scan's own frame and units.
+centroids) -> optional refinement (``arteq.fit.refine``) -> quality check
+(``arteq.fit.quality``) -> everything mapped back to the scan's own frame and units.
 
     from arteq.fit import fit_points, fit_files
     res = fit_points(points)            # [N, 3] metres -> FitResult (vertices, joints, betas, ...)
@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from arteq.fitting.quality import QualityThresholds, describe_flags, fit_quality
-from arteq.fitting.refine import RefineConfig, body_tables, refine
+from arteq.fit.quality import QualityThresholds, describe_flags, fit_quality
+from arteq.fit.refine import RefineConfig, body_tables, refine
 from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_points
 
 #: Status values of a :class:`FitResult`.
@@ -40,7 +40,7 @@ class FitResult:
     ``point_labels [N]`` predicted part of each input row (-1 for dropped NaN rows),
     ``point_confidence [N]`` its probability, ``point_fit_labels [N]`` part of the nearest fitted
     vertex, ``point_distance [N]`` distance to it (scan units, inf for dropped rows).
-    ``quality``: :func:`arteq.fitting.quality.fit_quality` values; ``timings`` in seconds.
+    ``quality``: :func:`arteq.fit.quality.fit_quality` values; ``timings`` in seconds.
     """
 
     name: str
@@ -139,7 +139,7 @@ class Fitter:
     Args:
         ckpt: checkpoint path or shipped model name (default: the pretrained ``anny22`` model).
         device: ``cpu``, ``cuda`` or ``auto``.
-        refine: run :func:`arteq.fitting.refine.refine` after the network.
+        refine: run :func:`arteq.fit.refine.refine` after the network.
         points: points of the input used by refinement and the quality check (resampled).
         refine_config: :class:`RefineConfig`; ``thresholds``: :class:`QualityThresholds`.
         check: turn failed quality checks into status ``not_single_body`` (else a warning only).

@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from arteq.fit.api import Fitter
     from arteq.fit.files import fit_files
-    from arteq.fitting.refine import RefineConfig
+    from arteq.fit.refine import RefineConfig
 
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -27,7 +27,7 @@ from arteq.geometry.pointops import farthest_point_sample, gather, knn
 
 
 @dataclass
-class FitResult:
+class OptimFitResult:
     """Output of :func:`fit_body` (all tensors batched, detached, on the input's device)."""
 
     pose: torch.Tensor  # [B, 22, 3, 3] local rotmats
@@ -114,7 +114,7 @@ def fit_body(
     mesh_subset: int | torch.Tensor | None = 2000,
     tol: float = 1e-5,
     patience: int = 30,
-) -> FitResult:
+) -> OptimFitResult:
     """Fit local pose (axis-angle), betas and translation of ``body`` to ``points``.
 
     Args:
@@ -135,7 +135,7 @@ def fit_body(
         tol, patience: stop when the objective improved by less than ``tol`` (relative) over
             ``patience`` iterations.
     Returns:
-        :class:`FitResult` with ``history`` (objective terms per iteration), ``iterations`` and
+        :class:`OptimFitResult` with ``history`` (objective terms per iteration), ``iterations`` and
         ``seconds`` (wall clock).
     """
     _check_points(points)
@@ -173,7 +173,7 @@ def fit_body(
     with torch.no_grad():
         out = body(betas=betas, pose=aa, transl=transl)
         pose = roma.rotvec_to_rotmat(aa)
-    return FitResult(
+    return OptimFitResult(
         pose=pose.detach(),
         pose_aa=aa.detach(),
         betas=betas.detach(),

@@ -1,6 +1,6 @@
 """Evaluate the optimisation fitter on test_id / test_ood with the training metrics.
 
-``python -m arteq.fitting.evaluate --out experiments/fitting/opt [--samples 16] [--num-points 1000]``
+``python -m arteq.optim_fit.evaluate --out experiments/fitting/opt [--samples 16] [--num-points 1000]``
 fits from the standard start (rest pose, 24 root orientations tried, centroid translation);
 ``--refine RUN_DIR`` starts from that ArtEq run's prediction instead (ArtEq + refinement) and uses the
 run's data configuration. Writes ``metrics.json`` / ``metrics.md`` in the format of
@@ -19,13 +19,13 @@ from typing import Any
 
 import torch
 
-from arteq.fitting.fit import fit_body
 from arteq.geometry.pointops import knn
 from arteq.io import runs
+from arteq.optim_fit.chamfer import fit_body
 from arteq.results import TEST_SPLITS, metric_values, metrics_markdown
 from arteq.training.metrics import BodyFitMetrics
 
-log = logging.getLogger("arteq.fitting")
+log = logging.getLogger("arteq.optim_fit")
 
 
 def evaluate_fitter(
@@ -83,7 +83,7 @@ def evaluate_fitter(
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap = argparse.ArgumentParser(
-        prog="python -m arteq.fitting.evaluate", description=__doc__.split("\n\n")[0]
+        prog="python -m arteq.optim_fit.evaluate", description=__doc__.split("\n\n")[0]
     )
     ap.add_argument("--out", required=True, help="output folder (metrics.json / metrics.md)")
     ap.add_argument(
