@@ -3,7 +3,14 @@
 The official ``.pkl`` files pickle ``chumpy`` objects and ``scipy.sparse`` matrices. They are read WITHOUT
 chumpy and without running arbitrary pickled code: :class:`SafeModelUnpickler` resolves only a small
 whitelist of globals (numpy array reconstruction, scipy sparse csc/csr matrices, chumpy arrays mapped to a
-stand-in that keeps the array) and refuses everything else.
+stand-in that keeps the array) and refuses everything else. Pickled entries of an ``.npz`` (object arrays,
+e.g. a sparse ``J_regressor`` saved by ``np.savez``, SMPL-X's ``joint2num``) go through the same unpickler.
+
+Files as users have them: SMPL v1.0 (``basicModel_f_lbs_10_207_0_v1.0.0.pkl``,
+``basicmodel_m_lbs_10_207_0_v1.0.0.pkl``, SMPLify's ``basicModel_neutral_lbs_10_207_0_v1.0.0.pkl``), SMPL v1.1
+(``basicmodel_{neutral,m,f}_lbs_10_207_0_v1.1.0.pkl``, renamed ``SMPL_NEUTRAL.pkl`` / ``SMPL_MALE.pkl`` /
+``SMPL_FEMALE.pkl`` for smplx), SMPL+H (MANO's ``SMPLH_male.pkl``, AMASS's ``smplh/<gender>/model.npz``),
+and their chumpy-free ``.pkl`` / ``.npz`` conversions (smplx's tools, ``np.savez`` of the unpickled dict).
 
 :func:`read_model_file` returns the raw arrays; :func:`to_body22` folds any SMPL-format joint set (24 for
 SMPL, 52 for SMPL-H) into the 22 body joints: joints beyond 21 are folded into their nearest ancestor among
@@ -34,6 +41,10 @@ LICENSE_HINT = (
 
 class BodyModelFileError(ValueError):
     """A body model file is missing, unreadable or does not hold a SMPL-format model."""
+
+
+class UnsafePickleError(pickle.UnpicklingError):
+    """A body model pickle (or pickled ``.npz`` entry) asked for a global outside the whitelist."""
 
 
 class _ChumpyStandIn:
@@ -96,10 +107,15 @@ for _n in _np_module_names("multiarray._reconstruct"):
     _ALLOWED[_n] = _RECONSTRUCT
 for _n in _np_module_names("multiarray.scalar"):
     _ALLOWED[_n] = _SCALAR
+_FROMBUFFER = np.zeros(1).__reduce_ex__(5)[0]  # protocol-5 array reconstruction (bytes, dtype, shape, order)
+for _n in _np_module_names("numeric._frombuffer"):
+    _ALLOWED[_n] = _FROMBUFFER
 for _mod in ("scipy.sparse.csc", "scipy.sparse._csc"):
     _ALLOWED[f"{_mod}.csc_matrix"] = _SparseStandIn
+    _ALLOWED[f"{_mod}.csc_array"] = _SparseStandIn
 for _mod in ("scipy.sparse.csr", "scipy.sparse._csr"):
     _ALLOWED[f"{_mod}.csr_matrix"] = _CsrStandIn
+    _ALLOWED[f"{_mod}.csr_array"] = _CsrStandIn
 for _cls in ("ch.Ch", "ch_ops.add", "ch_ops.subtract", "ch_ops.multiply", "reordering.Select"):
     _ALLOWED[f"chumpy.{_cls}"] = _ChumpyStandIn
 
@@ -114,7 +130,7 @@ class SafeModelUnpickler(pickle.Unpickler):
     def find_class(self, module: str, name: str) -> Any:
         obj = _ALLOWED.get(f"{module}.{name}")
         if obj is None:
-            raise pickle.UnpicklingError(
+            raise UnsafePickleError(
                 f"{self.source}: refusing to load global '{module}.{name}' — only numpy arrays, "
                 "scipy sparse matrices and chumpy arrays are allowed in a body model pickle"
             )
@@ -122,6 +138,8 @@ class SafeModelUnpickler(pickle.Unpickler):
 
 
 def _to_array(value: Any) -> np.ndarray:
+    if isinstance(value, np.ndarray) and value.dtype.hasobject and value.shape == ():
+        value = value.item()  # an object pickled into an .npz entry (e.g. a sparse matrix)
     if isinstance(value, _SparseStandIn):
         return value.toarray()
     if isinstance(value, _ChumpyStandIn):
@@ -129,6 +147,30 @@ def _to_array(value: Any) -> np.ndarray:
     if hasattr(value, "toarray"):  # a real scipy sparse matrix (e.g. from an npz written by a tool)
         return value.toarray()
     return np.asarray(value)
+
+
+def _read_npz(path: Path) -> dict[str, Any]:
+    """All entries of an ``.npz``; pickled (object) entries are read with :class:`SafeModelUnpickler`."""
+    out: dict[str, Any] = {}
+    with np.load(path, allow_pickle=False) as z:
+        names = list(z.files)
+        for key in names:
+            try:
+                out[key] = z[key]
+            except ValueError:  # an object array: numpy would unpickle it; we do, restricted
+                out[key] = None
+    pickled = [k for k, v in out.items() if v is None]
+    if pickled:
+        with zipfile.ZipFile(path) as zf:
+            for key in pickled:
+                with zf.open(f"{key}.npy") as fh:
+                    version = np.lib.format.read_magic(fh)
+                    if version == (1, 0):
+                        np.lib.format.read_array_header_1_0(fh)
+                    else:
+                        np.lib.format.read_array_header_2_0(fh)
+                    out[key] = SafeModelUnpickler(fh, source=f"{path}['{key}']").load()
+    return out
 
 
 def read_model_file(path: str | Path) -> dict[str, np.ndarray]:
@@ -143,8 +185,7 @@ def read_model_file(path: str | Path) -> dict[str, np.ndarray]:
     suffix = path.suffix.lower()
     try:
         if suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                raw = {k: z[k] for k in z.files}
+            raw = _read_npz(path)
         elif suffix == ".pkl":
             with open(path, "rb") as fh:
                 raw = SafeModelUnpickler(io.BufferedReader(fh), source=str(path)).load()
@@ -152,11 +193,10 @@ def read_model_file(path: str | Path) -> dict[str, np.ndarray]:
                 raise BodyModelFileError(f"'{path}': expected a pickled dict, got {type(raw).__name__}")
         else:
             raise BodyModelFileError(f"'{path}': unsupported extension '{suffix}' (expected .npz or .pkl)")
-    except pickle.UnpicklingError:
+    except (UnsafePickleError, BodyModelFileError):
         raise
-    except BodyModelFileError:
-        raise
-    except (OSError, EOFError, ValueError, zipfile.BadZipFile, pickle.PickleError, KeyError) as exc:
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile, pickle.PickleError, KeyError, TypeError,
+            AttributeError, IndexError) as exc:  # fmt: skip
         raise BodyModelFileError(
             f"'{path}' is not a readable SMPL-format model file ({type(exc).__name__}: {exc}). {LICENSE_HINT}"
         ) from exc
