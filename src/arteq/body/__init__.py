@@ -1,5 +1,5 @@
-"""Body models: SMPL-format LBS, SMPL/SMPL-H loaders, the free default body ``anny22``, and
-:func:`create_body`, the one factory every command uses."""
+"""Body models: SMPL-format LBS, SMPL/SMPL-H loaders, the free bodies ``anny22`` (default) and
+``anny_allages``, and :func:`create_body`, the one factory every command uses."""
 
 from arteq.body.factory import create_body
 from arteq.body.lbs import lbs, pose_features, shape_blend, skin

@@ -1,8 +1,10 @@
-"""Build "anny22", the free SMPL-format default body, from the ``anny`` package (Apache-2.0, CC0 assets).
+"""The Anny rig machinery shared by every body built from the ``anny`` package (Apache-2.0, CC0 assets).
 
-Usage: ``python -m arteq.body.anny22 [--out PATH] [--force] [--samples N] [--seed S]``. The file is cached
-under ``arteq.paths.cache_dir("body_models") / "anny22.npz"`` and built on first use by
-``load_body_model("anny22")``. ``anny`` is imported only inside the build functions: everything else runs
+A body built here is an SMPL-format ``.npz`` (read by :class:`arteq.body.BodyModel`) defined by an
+:class:`AnnyBodySpec`: which Anny shapes its PCA shape space is built from, how many samples, seed and
+components. ``anny22`` (:mod:`arteq.body.anny22`, adults 18-70, the research model's body) and
+``anny_allages`` (:mod:`arteq.body.anny_allages`, ages 2-90 and extreme builds) are the two specs;
+everything else is common. ``anny`` is imported only inside the build functions: everything else runs
 from the cached file on machines without ``anny``. Nothing is downloaded.
 
 What is built (see docs/body.md):
@@ -16,10 +18,9 @@ What is built (see docs/body.md):
 * Axes: Anny is z-up facing -y; SMPL is y-up facing +z, +x the body's left in both:
   ``p_smpl = C p_anny`` with ``C = [[1,0,0],[0,0,1],[0,-1,0]]`` (a rotation, -90 deg about x).
 * Origin: the pelvis (Anny's root bone head) of every shape sample is at the origin.
-* Shape space: PCA over ``N`` shapes drawn from ``anny.shape_distribution.SimpleShapeDistribution`` with
-  morphological age uniform in ``[18, 70]`` years (adults, like SMPL), all genders; 16 components stored
-  with unit variance (``shapedirs[..., k] = sqrt(lambda_k) * u_k``), so ``beta ~ N(0, I)`` reproduces the
-  sampled distribution's covariance within the kept subspace.
+* Shape space: PCA over the spec's shape samples (:meth:`AnnyBodySpec.sampler`); ``num_stored_betas``
+  components stored with unit variance (``shapedirs[..., k] = sqrt(lambda_k) * u_k``), so ``beta ~ N(0, I)``
+  reproduces the sampled distribution's covariance within the kept subspace.
 * Joint regressor: per joint, convex weights (non-negative, sum to one, hence translation-equivariant) over
   the 600 nearest vertices of its part and its parent's part, fitted by NNLS to Anny's own joint positions
   across the shape samples; the held-out error is stored in the provenance.
@@ -34,7 +35,10 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -80,13 +84,7 @@ TPOSE_BAKE: tuple[tuple[str, str, tuple[float, float, float]], ...] = (
 )
 #: Anny (z up, -y front) -> SMPL (y up, +z front) axes: p_smpl = C @ p_anny.
 ANNY_TO_SMPL = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
-AGE_RANGE = (18.0, 70.0)
 NUM_STORED_BETAS = 16
-
-
-def default_path() -> Path:
-    """Where the cached anny22 model lives: ``cache_dir("body_models") / "anny22.npz"``."""
-    return cache_dir("body_models") / "anny22.npz"
 
 
 def fold_table(bone_labels: list[str], bone_parents: list[int]) -> list[int]:
@@ -271,62 +269,95 @@ def _fit_regressor(
     return reg
 
 
-def build_anny22(
-    out: str | Path | None = None,
-    num_samples: int = 600,
-    seed: int = 0,
-    age_range: tuple[float, float] = AGE_RANGE,
-    verbose: bool = True,
-) -> Path:
-    """Build the anny22 model file (atomically) and return its path. Takes about a minute warm."""
-    import anny
+#: A shape sampler: ``sample(n) -> (morphological age in years [n], phenotypes {label: [n]}, tags
+#: {name: bool [n]})``, made once per build by :attr:`AnnyBodySpec.make_sampler` from the Anny model.
+Sampler = Callable[[int], tuple[torch.Tensor, dict[str, torch.Tensor], dict[str, torch.Tensor]]]
+
+
+@dataclass(frozen=True)
+class AnnyBodySpec:
+    """What defines one Anny-built body: its name and the shapes its PCA shape space is built from.
+
+    ``make_sampler(model)`` returns the :data:`Sampler`; it is called once, right after
+    ``torch.manual_seed(seed)``, and then asked for chunks of 64 shapes (so a build is deterministic).
+    ``meta`` is provenance written into the file after ``num_samples`` (in this order).
+    """
+
+    name: str
+    make_sampler: Callable[[Any], Sampler]
+    num_samples: int
+    seed: int = 0
+    num_stored_betas: int = NUM_STORED_BETAS
+    default_num_betas: int = 10
+    meta: dict[str, Any] = field(default_factory=dict)
+    build_time: str = "about a minute"
+
+    def default_path(self) -> Path:
+        """Where the cached file lives: ``cache_dir("body_models") / "<name>.npz"``."""
+        return cache_dir("body_models") / f"{self.name}.npz"
+
+
+def phenotype_sampler(model, age_range: tuple[float, float]):
+    """Anny's own age-aware sampler (``SimpleShapeDistribution``: height, weight, muscle and proportions
+    drawn from its per-age, per-gender distributions) with morphological age uniform in ``age_range`` years
+    and gender uniform in [0, 1]."""
     from anny.shape_distribution import SimpleShapeDistribution
 
-    out = Path(out) if out is not None else default_path()
-    t0 = time.time()
-
-    def log(msg: str) -> None:
-        if verbose:
-            print(f"[anny22 {time.time() - t0:6.1f}s] {msg}", file=sys.stderr, flush=True)
-
-    log(f"building the anny22 body model from anny {anny.__version__} -> {out}")
-    model = load_anny()
-    log(f"anny loaded: {model.template_vertices.shape[0]} vertices, {len(model.bone_labels)} bones")
-    bake = compute_bake(model)
-
-    torch.manual_seed(seed)
     age = torch.distributions.Uniform(
         torch.tensor(age_range[0], dtype=torch.float64), torch.tensor(age_range[1], dtype=torch.float64)
     )
-    dist = SimpleShapeDistribution(model, morphological_age_distribution=age)
-    verts, joints = [], []
+    return SimpleShapeDistribution(model, morphological_age_distribution=age)
+
+
+def sample_shapes(
+    spec: AnnyBodySpec,
+    model,
+    bake: dict[str, torch.Tensor],
+    num_samples: int | None = None,
+    seed: int | None = None,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """The spec's shape samples, T-posed in SMPL axes with the pelvis at the origin.
+
+    Returns ``vertices [N,V,3]``, ``joints [N,22,3]`` (float64 numpy), ``ages [N]`` (years),
+    ``phenotypes {label: [N]}`` and ``tags {name: bool [N]}`` (numpy). ``num_samples`` / ``seed`` default
+    to the spec's (other values: held-out sets drawn from the same distribution).
+    """
+    n_all = spec.num_samples if num_samples is None else num_samples
+    torch.manual_seed(spec.seed if seed is None else seed)
+    sample = spec.make_sampler(model)
+    verts, joints, ages, phens, tags = [], [], [], [], []
     chunk = 64
     with torch.no_grad():
-        for start in range(0, num_samples, chunk):
-            n = min(chunk, num_samples - start)
-            _, phen = dist.sample(n)
+        for start in range(0, n_all, chunk):
+            n = min(chunk, n_all - start)
+            age, phen, tag = sample(n)
             v, j = anny_tpose(model, phen, bake)
             verts.append(v)
             joints.append(j)
-            log(f"sampled shapes {start + n}/{num_samples}")
+            ages.append(age)
+            phens.append(phen)
+            tags.append(tag)
+            if log is not None:
+                log(f"sampled shapes {start + n}/{n_all}")
     V = torch.cat(verts).numpy()
     J = torch.cat(joints).numpy()
     # Pelvis at the origin for every shape.
     V = V - J[:, :1]
     J = J - J[:, :1]
+    return {
+        "vertices": V,
+        "joints": J,
+        "ages": torch.cat(ages).numpy(),
+        "phenotypes": {k: torch.cat([p[k] for p in phens]).numpy() for k in phens[0]},
+        "tags": {k: torch.cat([t[k] for t in tags]).numpy() for k in tags[0]},
+    }
 
-    # Skinning weights folded to 22 parts.
-    from anny.skinning.skinning import dense_bone_weights
 
-    dense = dense_bone_weights(model.vertex_bone_weights, model.vertex_bone_indices, len(model.bone_labels))
-    parts = np.asarray(fold_table(model.bone_labels, model.bone_parents))
-    w22 = np.zeros((dense.shape[0], NUM_JOINTS))
-    np.add.at(w22.T, parts, dense.numpy().T)
-    w22 /= w22.sum(1, keepdims=True)
-
-    # PCA shape space.
-    log("PCA")
-    nv = V.shape[1]
+def pca_shape_space(V: np.ndarray, num_components: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PCA of shapes ``V [N, nv, 3]``: ``mean [nv*3]``, unit-variance ``shapedirs [nv, 3, k]``
+    (``sqrt(lambda_k) u_k``) and the cumulative explained variance of every component ``[N]``."""
+    num_samples, nv = V.shape[0], V.shape[1]
     X = V.reshape(num_samples, -1)
     mean = X.mean(0)
     Xc = X - mean
@@ -336,8 +367,48 @@ def build_anny22(
     evals, evecs = np.clip(evals[order], 0.0, None), evecs[:, order]
     var = evals / (num_samples - 1)
     explained = np.cumsum(var) / var.sum()
-    comps = (Xc.T @ evecs[:, :NUM_STORED_BETAS]) / np.sqrt(evals[:NUM_STORED_BETAS])  # unit columns [3V, k]
-    shapedirs = (comps * np.sqrt(var[:NUM_STORED_BETAS])).reshape(nv, 3, -1)
+    k = num_components
+    comps = (Xc.T @ evecs[:, :k]) / np.sqrt(evals[:k])  # unit columns [3V, k]
+    shapedirs = (comps * np.sqrt(var[:k])).reshape(nv, 3, -1)
+    return mean, shapedirs, explained
+
+
+def folded_weights(model) -> tuple[np.ndarray, np.ndarray]:
+    """Anny's skinning weights summed into the 22 parts ``[V, 22]`` and the part of every bone."""
+    from anny.skinning.skinning import dense_bone_weights
+
+    dense = dense_bone_weights(model.vertex_bone_weights, model.vertex_bone_indices, len(model.bone_labels))
+    parts = np.asarray(fold_table(model.bone_labels, model.bone_parents))
+    w22 = np.zeros((dense.shape[0], NUM_JOINTS))
+    np.add.at(w22.T, parts, dense.numpy().T)
+    w22 /= w22.sum(1, keepdims=True)
+    return w22, parts
+
+
+def build_anny_body(spec: AnnyBodySpec, out: str | Path | None = None, verbose: bool = True) -> Path:
+    """Build the body file of ``spec`` (atomically) and return its path. About a minute warm."""
+    import anny
+
+    out = Path(out) if out is not None else spec.default_path()
+    t0 = time.time()
+
+    def log(msg: str) -> None:
+        if verbose:
+            print(f"[{spec.name} {time.time() - t0:6.1f}s] {msg}", file=sys.stderr, flush=True)
+
+    log(f"building the {spec.name} body model from anny {anny.__version__} -> {out}")
+    model = load_anny()
+    log(f"anny loaded: {model.template_vertices.shape[0]} vertices, {len(model.bone_labels)} bones")
+    bake = compute_bake(model)
+    samples = sample_shapes(spec, model, bake, log=log)
+    V, J = samples["vertices"], samples["joints"]
+    num_samples = spec.num_samples
+
+    w22, parts = folded_weights(model)
+
+    log("PCA")
+    nv = V.shape[1]
+    mean, shapedirs, explained = pca_shape_space(V, spec.num_stored_betas)
 
     # Joint regressor: fit on 80 % of the samples, report the error on the rest, refit on all.
     log("fitting the joint regressor")
@@ -349,14 +420,13 @@ def build_anny22(
     faces = model.faces.cpu().numpy().astype(np.int64)
     kintree = np.stack([np.array([2**32 - 1] + list(PARENTS[1:]), dtype=np.int64), np.arange(NUM_JOINTS)])
     meta = {
-        "name": "anny22",
+        "name": spec.name,
         "anny_version": anny.__version__,
-        "seed": seed,
+        "seed": spec.seed,
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "num_samples": num_samples,
-        "morphological_age_range_years": list(age_range),
-        "gender": "uniform in [0, 1] (anny phenotype)",
-        "variance_explained_cumulative": [float(x) for x in explained[:NUM_STORED_BETAS]],
+        **spec.meta,
+        "variance_explained_cumulative": [float(x) for x in explained[: spec.num_stored_betas]],
         "joint_regressor_heldout_error_mm": {
             "mean": float(err.mean()),
             "max": float(err.max()),
@@ -370,6 +440,15 @@ def build_anny22(
         "posedirs": "none (anny has no pose correctives)",
         "units": "metres",
     }
+    if spec.name != "anny22":  # anny22's file stays as it always was (its provenance keys included)
+        meta["default_num_betas"] = spec.default_num_betas
+        meta["sample_ages_years"] = {
+            "min": float(samples["ages"].min()),
+            "max": float(samples["ages"].max()),
+        }
+        heights = V[..., 1].max(1) - V[..., 1].min(1)
+        meta["sample_heights_m"] = {"min": float(heights.min()), "max": float(heights.max())}
+        meta["sample_tags"] = {k: int(v.sum()) for k, v in samples["tags"].items()}
     arrays = {
         "v_template": mean.reshape(nv, 3).astype(np.float32),
         "shapedirs": shapedirs.astype(np.float32),
@@ -381,6 +460,14 @@ def build_anny22(
         "tpose_bake_rotmats": torch.stack(list(bake.values())).numpy(),
         "meta_json": np.array(json.dumps(meta)),
     }
+    if spec.name != "anny22":
+        # The training shapes as betas (orthogonal columns: projection = least squares), with their ages and
+        # tags: lets a data pipeline draw realistic shapes instead of beta ~ N(0, I) of a mixture.
+        S = shapedirs.reshape(-1, shapedirs.shape[-1])
+        arrays["sample_betas"] = ((V.reshape(num_samples, -1) - mean) @ S / (S**2).sum(0)).astype(np.float32)
+        arrays["sample_ages_years"] = samples["ages"].astype(np.float32)
+        for key, tag in samples["tags"].items():
+            arrays[f"sample_{key}"] = tag.astype(bool)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp.npz")
     try:
@@ -389,56 +476,59 @@ def build_anny22(
     finally:
         if tmp.exists():
             tmp.unlink()
+    k = min(spec.default_num_betas, spec.num_stored_betas)
     log(
-        f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB): variance explained by 10 betas "
-        f"{explained[9] * 100:.2f}%, joint regressor error mean {err.mean():.2f} mm / max {err.max():.2f} mm"
+        f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB): variance explained by {k} betas "
+        f"{explained[k - 1] * 100:.2f}%, joint regressor error mean {err.mean():.2f} mm / "
+        f"max {err.max():.2f} mm"
     )
     return out
 
 
-def read_meta(path: str | Path | None = None) -> dict:
+def read_meta(path: str | Path) -> dict:
     """Provenance dict stored in an anny22 file."""
-    with np.load(path or default_path(), allow_pickle=False) as z:
+    with np.load(path, allow_pickle=False) as z:
         return json.loads(str(z["meta_json"]))
 
 
-def read_bake(path: str | Path | None = None) -> dict[str, torch.Tensor]:
+def read_bake(path: str | Path) -> dict[str, torch.Tensor]:
     """The T-pose bake deltas ``{anny bone: [3,3]}`` stored in an anny22 file."""
     meta = read_meta(path)
-    with np.load(path or default_path(), allow_pickle=False) as z:
+    with np.load(path, allow_pickle=False) as z:
         rots = torch.as_tensor(z["tpose_bake_rotmats"], dtype=torch.float64)
     return dict(zip(meta["tpose_bake_bones"], rots))
 
 
-def ensure_anny22(path: str | Path | None = None, force: bool = False) -> Path:
-    """Return the cached anny22 file, building it (needs ``anny``) if absent or ``force``."""
-    path = Path(path) if path is not None else default_path()
+def ensure_body(spec: AnnyBodySpec, path: str | Path | None = None, force: bool = False) -> Path:
+    """Return the cached file of ``spec``, building it (needs ``anny``) if absent or ``force``."""
+    path = Path(path) if path is not None else spec.default_path()
     if path.is_file() and not force:
         return path
     try:
         import anny  # noqa: F401
     except ImportError as exc:
         raise RuntimeError(
-            f"the anny22 body model is not cached at '{path}' and the `anny` package needed to build it is "
-            "not installed: `pip install anny==0.6.2` (or copy anny22.npz there from a machine that has it)"
+            f"the {spec.name} body model is not cached at '{path}' and the `anny` package needed to build it "
+            f"is not installed: `pip install anny==0.6.2` (or copy {spec.name}.npz there from a machine that "
+            "has it)"
         ) from exc
-    print(f"arteq: building the anny22 body model into {path} (once; about a minute) ...", file=sys.stderr)
-    return build_anny22(path)
+    msg = f"arteq: building the {spec.name} body model into {path} (once; {spec.build_time}) ..."
+    print(msg, file=sys.stderr)
+    return build_anny_body(spec, path)
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def main(make_spec: Callable[..., AnnyBodySpec], argv: list[str] | None = None, doc: str = "") -> None:
+    """``python -m arteq.body.<name> [--out PATH] [--force] [--samples N] [--seed S]``."""
+    default = make_spec()
+    parser = argparse.ArgumentParser(description=doc or f"Build the {default.name} body model file.")
     parser.add_argument("--out", type=Path, default=None, help="output .npz (default: the arteq cache)")
     parser.add_argument("--force", action="store_true", help="rebuild even if the file exists")
-    parser.add_argument("--samples", type=int, default=600, help="shape samples for the PCA")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--samples", type=int, default=default.num_samples, help="shape samples for the PCA")
+    parser.add_argument("--seed", type=int, default=default.seed)
     args = parser.parse_args(argv)
-    out = args.out or default_path()
+    spec = make_spec(num_samples=args.samples, seed=args.seed)
+    out = args.out or spec.default_path()
     if out.exists() and not args.force:
         print(f"{out} exists (use --force to rebuild)")
         return
-    build_anny22(out, num_samples=args.samples, seed=args.seed)
-
-
-if __name__ == "__main__":
-    main()
+    build_anny_body(spec, out)

@@ -28,7 +28,8 @@ def create_body(spec: nn.Module | Mapping[str, Any] | None = None, /, **kwargs: 
 
     Args:
         spec: a body ``nn.Module`` (returned as is), or a config mapping (plain or OmegaConf) with
-            ``name`` (``anny22`` default, ``smpl``, ``smplh``, or ``toy``: the procedural test body),
+            ``name`` (``anny22`` default, ``anny_allages``, ``smpl``, ``smplh``, or ``toy``: the procedural
+            test body),
             ``model_path``, ``num_betas``, ``gender``; ``_target_`` is ignored.
         kwargs: config keys given directly (they win over ``spec``'s); how Hydra calls it.
     Returns:

@@ -1,6 +1,7 @@
 """``BodyModel``: a thin ``nn.Module`` over :mod:`arteq.body.lbs`, and :func:`load_body_model`.
 
-One code path serves SMPL, SMPL-H (hands folded into the wrists) and the free default body ``anny22``.
+One code path serves SMPL, SMPL-H (hands folded into the wrists) and the free bodies ``anny22`` (the
+default) and ``anny_allages``.
 """
 
 from __future__ import annotations
@@ -212,41 +213,58 @@ def _find_smpl_file(model_path: Path, name: str, gender: str) -> Path:
     return cands[0]
 
 
+#: Free bodies built from the ``anny`` package: name -> the module whose ``spec()`` defines it.
+ANNY_BODIES = {"anny22": "arteq.body.anny22", "anny_allages": "arteq.body.anny_allages"}
+#: Every body name :func:`load_body_model` knows.
+BODY_NAMES = (*ANNY_BODIES, "smpl", "smplh", "smpl-h")
+
+
 def load_body_model(
     name: str = "anny22",
     model_path: str | None = None,
-    num_betas: int = 10,
+    num_betas: int | None = None,
     gender: str = "neutral",
 ) -> BodyModel:
     """Load a body model by name; Hydra target of ``conf/body_model/*.yaml``.
 
     Args:
-        name: ``"anny22"`` (free default; built from ``anny`` into the cache on first use if
-            ``model_path`` is None) or ``"smpl"`` / ``"smplh"`` (licensed files: ``model_path`` required).
+        name: ``"anny22"`` (free default, adults) or ``"anny_allages"`` (free, ages 2-90 and extreme
+            builds), built from ``anny`` into the cache on first use if ``model_path`` is None; or
+            ``"smpl"`` / ``"smplh"`` (licensed files: ``model_path`` required).
         model_path: a model file, or for SMPL a folder searched for a file with ``gender`` in its name.
-        num_betas: shape coefficients kept (error if the file has fewer).
-        gender: ``"neutral"``, ``"male"`` or ``"female"`` (SMPL only; anny22 is gender-neutral: gender
-            is one of its shape dimensions).
+        num_betas: shape coefficients kept (error if the file has fewer); None: the body's default
+            (10; anny_allages: :data:`arteq.body.anny_allages.DEFAULT_NUM_BETAS`).
+        gender: ``"neutral"``, ``"male"`` or ``"female"`` (SMPL only; the Anny bodies are gender-neutral:
+            gender is one of their shape dimensions).
     """
     if gender not in ("neutral", "male", "female"):
         raise ValueError(f"load_body_model: gender must be neutral/male/female, got {gender!r}")
     name = name.lower()
-    if name == "anny22":
-        if model_path is None:
-            from arteq.body.anny22 import ensure_anny22
+    if name in ANNY_BODIES:
+        import importlib
 
-            path = ensure_anny22()
+        from arteq.body.anny_rig import ensure_body
+
+        module_name = ANNY_BODIES[name]
+        spec = importlib.import_module(module_name).spec()
+        if model_path is None:
+            path = ensure_body(spec)
         else:
             path = Path(model_path).expanduser()
             if not path.is_file():
                 raise BodyModelFileError(
-                    f"anny22 model file not found: '{path}'. Build it with `python -m arteq.body.anny22 "
+                    f"{name} model file not found: '{path}'. Build it with `python -m {module_name} "
                     f"--out {path}` or drop `body_model.model_path` to use the cached default."
                 )
-        return BodyModel.from_npz(path, num_betas=num_betas, name="anny22")
+        nb = spec.default_num_betas if num_betas is None else num_betas
+        return BodyModel.from_npz(path, num_betas=nb, name=name)
+    if num_betas is None:
+        num_betas = 10
     if name in ("smpl", "smplh", "smpl-h"):
         if model_path is None or str(model_path) in ("", "???"):
             raise BodyModelFileError(f"body model '{name}' needs `body_model.model_path`. {LICENSE_HINT}")
         path = _find_smpl_file(Path(model_path).expanduser(), name, gender)
         return BodyModel.from_file(path, num_betas=num_betas, name=name)
-    raise ValueError(f"load_body_model: unknown body model {name!r} (expected 'anny22', 'smpl' or 'smplh')")
+    raise ValueError(
+        f"load_body_model: unknown body model {name!r} (expected one of {', '.join(map(repr, BODY_NAMES))})"
+    )
