@@ -1,4 +1,5 @@
-"""AMASS reader and AMASS-backed data module on synthetic .npz files with AMASS's keys."""
+"""AMASS reader and AMASS-backed data module on small synthetic .npz files with AMASS's keys (files named
+without the subject prefix, as a user's own conversions may be; the real layouts: test_amass_layouts.py)."""
 
 import numpy as np
 import pytest
@@ -8,14 +9,16 @@ import torch
 from arteq.data import AmassPoses, BodyScanDataModule, read_amass_npz
 
 
-def _write(path, n, seed=0, keys=("poses", "betas", "trans", "gender", "mocap_framerate"), cols=156):
+def _write(
+    path, n, seed=0, keys=("poses", "betas", "trans", "gender", "mocap_framerate"), cols=156, fps=60.0
+):
     rng = np.random.default_rng(seed)
     data = {
         "poses": rng.normal(0, 0.3, (n, cols)),
         "betas": rng.normal(0, 1, 16),
         "trans": rng.normal(0, 0.5, (n, 3)),
         "gender": np.array("female"),
-        "mocap_framerate": np.array(60.0),
+        "mocap_framerate": np.array(fps),
     }
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez(path, **{k: v for k, v in data.items() if k in keys})
@@ -33,7 +36,7 @@ def amass_root(tmp_path):
         ):
             _write(tmp_path / "DFaust_67" / subj / f"{m}_poses.npz", n, seed=hash((subj, m)) % 1000)
         np.savez(tmp_path / "DFaust_67" / subj / "shape.npz", betas=np.zeros(16), gender=np.array("male"))
-    _write(tmp_path / "MPI_Limits" / "03099" / "op2_poses.npz", 50, cols=72)
+    _write(tmp_path / "MPI_Limits" / "03099" / "op2_poses.npz", 50, cols=72, fps=120.0)
     return tmp_path
 
 
@@ -42,12 +45,12 @@ def test_read_amass_npz(tmp_path):
     out = read_amass_npz(tmp_path / "a_poses.npz")
     assert out["poses"].shape == (7, 22, 3) and out["trans"].shape == (7, 3) and out["betas"].shape == (16,)
     assert np.allclose(out["poses"].reshape(7, -1), d["poses"][:, :66])
-    assert str(out["gender"]) == "female"
+    assert out["gender"] == "female" and out["fps"] == 60.0 and out["surface_model"] == "smplh"
 
 
 def test_bad_files_give_clear_errors(tmp_path):
-    _write(tmp_path / "nokeys_poses.npz", 5, keys=("poses", "betas"))
-    with pytest.raises(ValueError, match=r"nokeys_poses\.npz.*missing keys \['trans'\]"):
+    _write(tmp_path / "nokeys_poses.npz", 5, keys=("poses", "betas", "mocap_framerate"))
+    with pytest.raises(ValueError, match=r"nokeys_poses\.npz: not an AMASS motion file, missing trans "):
         read_amass_npz(tmp_path / "nokeys_poses.npz")
     _write(tmp_path / "short_poses.npz", 5, cols=30)
     with pytest.raises(ValueError, match=r"short_poses\.npz.*poses"):
@@ -59,7 +62,7 @@ def test_bad_files_give_clear_errors(tmp_path):
         read_amass_npz(tmp_path / "missing_poses.npz")
     with pytest.raises(FileNotFoundError, match="AMASS root folder not found"):
         AmassPoses(tmp_path / "nope")
-    with pytest.raises(FileNotFoundError, match="DFaust_67"):
+    with pytest.raises(FileNotFoundError, match=r"no folder of sub-dataset DFaust .*DFaust_67"):
         AmassPoses(tmp_path)  # root exists, no DFaust folder
 
 
@@ -74,8 +77,8 @@ def test_splits_crop_and_stride(amass_root):
     assert len(val) == 2 * 2  # 20 frames -> 5..14 -> 2
     assert {f.stem for f in test.files} == {"punching_poses", "chicken_wings_poses"}
     assert all(f.name != "shape.npz" for f in train.files)
-    ood = AmassPoses(amass_root, datasets=["MPI_Limits", "PosePrior"], split="all", all_stride=5)
-    assert len(ood) == 10
+    ood = AmassPoses(amass_root, datasets=["MPI_Limits", "PosePrior"], split="all", all_fps=24)
+    assert len(ood) == 10  # 50 frames at 120 fps, every 5th
 
 
 def test_y_up_conversion_and_betas(amass_root):
@@ -110,9 +113,9 @@ def test_datamodule_on_amass(amass_root, tmp_path):
         batch_size=4,
         cache_root=str(tmp_path / "cache"),
     )
-    dm.setup()
-    assert len(dm.datasets["train"]) == 80 and len(dm.datasets["test_id"]) == 32
-    assert len(dm.datasets["test_ood"]) == 10 and len(dm.datasets["val"]) == 4
+    dm.setup("fit")
+    assert len(dm.datasets["train"]) == 80 and len(dm.datasets["val"]) == 4
+    assert len(dm.fixed_set("test_id")) == 32 and len(dm.fixed_set("test_ood")) == 10
     b = next(iter(dm.train_dataloader()))
     assert b["points"].shape == (4, 500, 3) and b["betas"].shape == (4, 2)
     with pytest.raises(ValueError, match="amass_root"):

@@ -311,21 +311,17 @@ class BodyScanDataModule(L.LightningDataModule):
     def _sources(self, split: str) -> PoseSource:
         if self.source == "synthetic":
             return SyntheticOODPoses() if split == "test_ood" else SyntheticIDPoses()
-        from arteq.data.amass import AmassPoses
+        from arteq.data.amass import amass_source
 
-        use_betas = self.use_data_betas
-        if use_betas is None:
-            use_betas = str(getattr(self.body, "name", "")).lower().startswith("smpl")
-        if split == "test_ood":
-            return AmassPoses(
-                self.amass_root,
-                datasets=self.amass_ood_datasets,
-                split="all",
-                all_stride=self.amass_ood_stride,
-                use_betas=use_betas,
-            )
-        amass_split = {"train": "train", "val": "val", "test_id": "test"}[split]
-        return AmassPoses(self.amass_root, split=amass_split, use_betas=use_betas, **self.amass_kwargs)
+        # data.amass options, the OOD sub-dataset; betas from the files only where they fit the body
+        return amass_source(
+            self.amass_root,
+            split,
+            self.amass_kwargs,
+            ood_datasets=self.amass_ood_datasets,
+            use_betas=self.use_data_betas,
+            body_name=str(getattr(self.body, "name", "")),
+        )
 
     def make_dataset(self, split: str) -> BodyScanDataset:
         """The on-the-fly dataset of a split (for the fixed splits: the generator of the cached set)."""

@@ -133,14 +133,36 @@ def validate_body_model(cfg: DictConfig) -> None:
     _int_at_least(cfg, "body_model.num_betas", 1)
 
 
+AMASS_ROOT = "the AMASS folder (DFaust_67/ + MPI_Limits/ of SMPL+H G, or DFaust/ + PosePrior/ of SMPL-X G)"
+
+
+def validate_amass(cfg: DictConfig) -> None:
+    """``data.amass`` options, then the AMASS root itself (every sub-dataset found, every motion file with
+    its keys): a bad download fails in one line before anything is built (:mod:`arteq.data.amass`)."""
+    from arteq.data.amass import AmassConfigError, AmassError, AmassNotFoundError, check_amass_config
+
+    root = str(_get(cfg, "data.amass_root"))
+    try:
+        check_amass_config(
+            root,
+            _get(cfg, "data.amass") or {},
+            _get(cfg, "data.amass_ood_datasets", ["PosePrior"]),
+            ood_stride=_get(cfg, "data.amass_ood_stride"),
+        )
+    except AmassConfigError as e:
+        raise ConfigError(e.key, e.value, e.allowed) from None
+    except AmassError as e:
+        error = ConfigPathError if isinstance(e, AmassNotFoundError) else ConfigError
+        raise error("data.amass_root", root, f"an AMASS root as in docs/data.md; {e}") from None
+
+
 def validate_data(cfg: DictConfig, processes: int | None = None) -> None:
     source = _one_of(cfg, "data.source", ("synthetic", "amass"))
     if source == "amass":
-        _existing_path(cfg, "data.amass_root", "the AMASS folder (holding DFaust_67/ and MPI_Limits/)", True)
+        _existing_path(cfg, "data.amass_root", AMASS_ROOT, True)
         if _get(cfg, "data.amass_root") is None:
-            raise ConfigError(
-                "data.amass_root", None, "the AMASS folder (holding DFaust_67/ and MPI_Limits/)"
-            )
+            raise ConfigError("data.amass_root", None, AMASS_ROOT)
+        validate_amass(cfg)
     _int_at_least(cfg, "data.num_points", 1, hint=" (500..5000 in the paper's study; 5000 = paper)")
     noise = _get(cfg, "data.noise_std")
     if not (isinstance(noise, int | float) and math.isfinite(noise) and 0 <= noise < 0.05):
