@@ -1,5 +1,9 @@
 # arteq — common tasks. `make install` creates .venv and installs the project (editable).
 PY ?= python3
+# Installed before the project: pyproject allows any torch >= 2.4, and pip would otherwise pick the newest
+# build for this platform (on Linux a multi-GB CUDA one). Here 2.13.0 is the on-disk CPU build; a GPU user
+# can pass e.g. TORCH="torch==2.13.0 --index-url <their CUDA index>".
+TORCH ?= torch==2.13.0
 VENV ?= .venv
 BIN := $(VENV)/bin
 
@@ -10,6 +14,7 @@ $(BIN)/python:
 	$(BIN)/python -m pip install -q --upgrade pip
 
 install: $(BIN)/python
+	$(BIN)/pip install -q $(TORCH)
 	$(BIN)/pip install -q -e ".[anny,dev]"
 
 test:

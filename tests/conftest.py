@@ -13,8 +13,9 @@ from pathlib import Path
 import pytest
 
 import arteq  # noqa: F401  (registers the resolvers conf/ uses)
+from arteq.paths import conf_dir
 
-CONF = str(Path(__file__).resolve().parents[1] / "conf")
+CONF = str(conf_dir())
 ROOT = Path(__file__).resolve().parents[1]
 
 

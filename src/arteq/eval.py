@@ -17,6 +17,7 @@ import lightning as L
 from omegaconf import DictConfig
 
 from arteq.io import runs
+from arteq.paths import conf_dir
 from arteq.results import method_name, metrics_markdown, metrics_table, summary_rows
 from arteq.training.build import build_datamodule
 from arteq.training.module import ArtEqModule
@@ -80,7 +81,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     return summary
 
 
-@hydra.main(version_base="1.3", config_path="../../conf", config_name="eval")
+@hydra.main(version_base="1.3", config_path=str(conf_dir()), config_name="eval")
 def main(cfg: DictConfig) -> None:
     from arteq.training.validate import exit_on_config_error
 

@@ -26,6 +26,7 @@ from omegaconf import DictConfig, OmegaConf
 from torch import nn
 
 from arteq.io.runs import last_checkpoint
+from arteq.paths import conf_dir
 from arteq.results import method_name
 from arteq.training.build import build_body, build_datamodule, build_module
 from arteq.training.plan import (
@@ -119,7 +120,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     return summary
 
 
-@hydra.main(version_base="1.3", config_path="../../conf", config_name="train")
+@hydra.main(version_base="1.3", config_path=str(conf_dir()), config_name="train")
 def main(cfg: DictConfig) -> float | None:
     from arteq.runtime import tune_cpu_allocator
 
