@@ -84,7 +84,7 @@ def network(args) -> None:
     rows = []
     for refine_on in (False, True):
         fitter = Fitter(ckpt=args.ckpt, device=args.device, refine=refine_on, points=5000,
-                        refine_config=RefineConfig(iters=args.iters), check=False)  # fmt: skip
+                        refine_config=RefineConfig(iters=args.iters), check=False, anny=False)  # fmt: skip
         dm = BodyScanDataModule(body_model=dict(fitter.module.hparams.body_model), num_points=5000,
                                 test_size=args.samples, batch_size=args.batch, num_workers=0)  # fmt: skip
         dm.setup("test")

@@ -44,7 +44,7 @@ def main() -> None:
     ap.add_argument("--ckpt", default="anny22")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    f = Fitter(ckpt=args.ckpt, device="cpu", refine=False, points=5000, check=False)
+    f = Fitter(ckpt=args.ckpt, device="cpu", refine=False, points=5000, check=False, anny=False)
     dm = BodyScanDataModule(body_model=dict(f.module.hparams.body_model), num_points=5000,
                             test_size=args.n, batch_size=args.n, num_workers=0)  # fmt: skip
     dm.setup("test")

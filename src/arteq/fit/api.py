@@ -1,6 +1,7 @@
 """Fit the body model to scans: the Python API behind ``arteq-fit``.
 
-A scan's path: ``arteq.io.scans`` reads it -> units to metres, size check, centring (float64) ->
+A scan's path: ``arteq.io.scans`` reads it -> units to metres, clutter removal (``arteq.fit.clean``:
+floors and walls, stray points, separate objects), size check, centring (float64) ->
 resampling to the network's point count -> the ArtEq network (parts, rotations, shape; translation by
 centroids) -> optional refinement (``arteq.fit.refine``) -> quality check
 (``arteq.fit.quality``) -> everything mapped back to the scan's own frame and units.
@@ -21,6 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from arteq.fit.clean import CleanConfig, CleanResult, clean_scan
 from arteq.fit.quality import QualityThresholds, describe_flags, fit_quality
 from arteq.fit.refine import RefineConfig, body_tables, refine
 from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_points
@@ -37,9 +39,11 @@ class FitResult:
     ``betas [nb]``; ``pose_aa [22, 3]`` local axis-angle (root first: the global orientation);
     ``global_rotmats [22, 3, 3]`` world rotation of each part; ``transl_m [3]`` translation in metres
     such that ``body(betas, pose_aa, transl_m).vertices / scale_to_m`` is ``vertices``.
-    ``point_labels [N]`` predicted part of each input row (-1 for dropped NaN rows),
+    ``point_labels [N]`` predicted part of each input row (-1 for dropped NaN rows and removed clutter),
     ``point_confidence [N]`` its probability, ``point_fit_labels [N]`` part of the nearest fitted
-    vertex, ``point_distance [N]`` distance to it (scan units, inf for dropped rows).
+    vertex, ``point_distance [N]`` distance to it (scan units, inf for dropped NaN rows),
+    ``point_clutter [N]`` what clutter removal did with each row (:data:`arteq.fit.clean.CODES`: 0 kept,
+    1 plane, 2 outlier, 3 separate cluster; -1 NaN). ``clean``: the :class:`CleanResult` (or None).
     ``quality``: :func:`arteq.fit.quality.fit_quality` values; ``timings`` in seconds.
     """
 
@@ -61,6 +65,11 @@ class FitResult:
     point_distance: np.ndarray | None = None
     scan_points: np.ndarray | None = None  # the points fitted (file units), for meshes and previews
     scan_labels: np.ndarray | None = None  # predicted part of each of scan_points
+    point_clutter: np.ndarray | None = None
+    clean: CleanResult | None = None
+    clutter_points: np.ndarray | None = None  # up to 5000 of the removed points (file units), for previews
+    anny: dict | None = None  # arteq.fit.anny_params.AnnyExport.export: phenotype, pose, measurements
+    anny_note: str = ""  # why there is no Anny export (anny not installed, not an Anny body, failed)
     quality: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
     body_model: str = ""
@@ -75,6 +84,19 @@ class FitResult:
     def arrays(self) -> dict[str, Any]:
         """The ``.npz`` content (see docs/fitting.md)."""
         q = {f"quality_{k}": v for k, v in self.quality.items() if k != "flags"}
+        c = self.clean.counts if self.clean is not None else {}
+        planes = self.clean.planes if self.clean is not None else []
+        clutter = {
+            "point_clutter": self.point_clutter,
+            "clutter_removed": np.bool_(self.clean is not None),
+            **{f"clutter_{k}": np.int64(c.get(k, 0)) for k in ("plane", "outlier", "cluster")},
+            # each removed plane as [nx, ny, nz, d] with n.p + d = 0 for p in the scan's units
+            "clutter_planes": np.array(
+                [[*pl["normal"], pl["offset"] / self.scale_to_m] for pl in planes], dtype=np.float64
+            ).reshape(-1, 4),
+        }
+        from arteq.fit.anny_params import npz_arrays
+
         return {
             "betas": self.betas,
             "pose": self.pose_aa,
@@ -92,7 +114,30 @@ class FitResult:
             "scale_to_m": np.float64(self.scale_to_m),
             "refined": np.bool_(self.refined),
             "status": np.str_(self.status),
+            **clutter,
+            **npz_arrays(self.anny),
             **{k: np.asarray(v, dtype=np.float64) for k, v in q.items()},
+        }
+
+    def to_json(self, source: str = "") -> dict[str, Any]:
+        """``<name>.json``: the fit in words and numbers a person can read (arrays stay in the npz)."""
+        from arteq.fit.anny_params import json_section
+
+        q = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in self.quality.items()}
+        return {
+            "name": self.name,
+            "source": source,
+            "status": self.status,
+            "message": self.message,
+            "units": self.units,
+            "body_model": self.body_model,
+            "checkpoint": self.checkpoint,
+            "refined": self.refined,
+            "betas": [round(float(b), 4) for b in self.betas] if self.betas is not None else None,
+            "quality": q,
+            "clutter_removed": self.clean.counts if self.clean is not None else None,
+            "anny": json_section(self.anny, self.anny_note),
+            "seconds": {k: round(v, 3) for k, v in self.timings.items()},
         }
 
     def summary_row(self) -> dict[str, Any]:
@@ -109,8 +154,27 @@ class FitResult:
             "max_abs_beta": q.get("max_abs_beta"),
             "extent_m": q.get("extent_m"),
             "flags": " ".join(q.get("flags", [])),
+            **{
+                f"removed_{k}": (self.clean.counts[k] if self.clean is not None else None)
+                for k in ("plane", "outlier", "cluster")
+            },
+            **_anny_row(self.anny),
             "seconds": self.timings.get("total"),
+            "anny_seconds": self.timings.get("anny"),
         }
+
+
+def _anny_row(anny: dict | None) -> dict[str, Any]:
+    """Summary columns of the Anny export (None without one)."""
+    m = anny["measurements"] if anny else {}
+    return {
+        "stature_cm": round(m["stature_m"] * 100, 2) if anny else None,
+        "waist_cm": round(m["waist_circumference_m"] * 100, 2) if anny else None,
+        "mass_kg": round(m["mass_kg"], 2) if anny else None,
+        "bmi": round(m["bmi"], 2) if anny else None,
+        "age_years": round(anny["age_years"], 1) if anny else None,
+        "anny_rebuild_mm": round(anny["rebuild_mm"]["mean"], 2) if anny else None,
+    }
 
 
 def resolve_device(device: str) -> torch.device:
@@ -142,6 +206,11 @@ class Fitter:
         refine: run :func:`arteq.fit.refine.refine` after the network.
         points: points of the input used by refinement and the quality check (resampled).
         refine_config: :class:`RefineConfig`; ``thresholds``: :class:`QualityThresholds`.
+        clean: remove clutter (floors, walls, stray points, separate objects) before the network;
+            ``clean_config``: :class:`CleanConfig`.
+        anny: Anny's phenotype, pose and body measurements per fit (:mod:`arteq.fit.anny_params`):
+            ``True`` (error without ``anny`` or for a body not in Anny's topology), ``False``, or ``None``
+            (default: when ``anny`` is installed and the body is an Anny body).
         check: turn failed quality checks into status ``not_single_body`` (else a warning only).
         seed: resampling seed (each scan is resampled with it: results do not depend on batching).
     """
@@ -156,6 +225,9 @@ class Fitter:
         thresholds: QualityThresholds | None = None,
         check: bool = True,
         seed: int = 0,
+        clean: bool = True,
+        clean_config: CleanConfig | None = None,
+        anny: bool | None = None,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
         from arteq.training.module import ArtEqModule
@@ -184,9 +256,22 @@ class Fitter:
         self.thresholds = thresholds or QualityThresholds()
         self.check = check
         self.seed = seed
+        self.clean = clean
+        self.clean_config = clean_config or CleanConfig()
         self.faces = self.body.faces.cpu().numpy()
         self.vertex_parts = self.body.part_labels.cpu().numpy()
         self.subset = body_tables(self.body, self.refine_config.m2s_vertices).m2s_subset.cpu().numpy()
+        self.anny_export, self.anny_note = None, "off (anny=False)"
+        if anny is not False:
+            from arteq.fit.anny_params import AnnyExport, AnnyUnavailable
+
+            try:
+                self.anny_export = AnnyExport(self.body)
+                self.anny_note = ""
+            except AnnyUnavailable as exc:
+                if anny:
+                    raise
+                self.anny_note = f"off: {exc}"
 
     # ------------------------------------------------------------------ core (metres)
     def prepare(self, points: np.ndarray, units: str = "m", name: str = "points") -> dict[str, Any]:
@@ -206,10 +291,31 @@ class Fitter:
             raise ScanError(f"{name}: only {len(finite)} usable points, at least {MIN_POINTS} are needed")
         scale = UNITS[units]
         metres = finite * scale
-        check_body_size(metres, name, units)
-        center = metres.mean(0)
-        return {"name": name, "centred": metres - center, "center": center, "keep": keep,
-                "scale": scale, "units": units, "warnings": warnings}  # fmt: skip
+        cleaned = None
+        clutter = np.full(len(pts), -1, dtype=np.int8)
+        clutter[keep] = 0
+        t0 = time.perf_counter()
+        if self.clean:
+            # units first (a millimetre file read as metres is not a room to clean), loosely: the room counts
+            check_body_size(metres, name, units, limits_m=(0.4, 8.0))
+            cleaned = clean_scan(metres, self.clean_config)
+            clutter[keep] = cleaned.codes
+            if cleaned.keep.sum() < MIN_POINTS:
+                raise ScanError(
+                    f"{name}: only {int(cleaned.keep.sum())} points left after clutter removal "
+                    f"({cleaned.describe()}), at least {MIN_POINTS} are needed (try --no-clean)"
+                )
+            if cleaned.describe():
+                warnings.append(cleaned.describe())
+            body_m = metres[cleaned.keep]
+        else:
+            body_m = metres
+        t_clean = time.perf_counter() - t0
+        check_body_size(body_m, name, units)
+        center = body_m.mean(0)
+        return {"name": name, "centred": body_m - center, "center": center, "keep": clutter == 0,
+                "finite": keep, "finite_centred": metres - center, "clutter": clutter, "clean": cleaned,
+                "clean_seconds": t_clean, "scale": scale, "units": units, "warnings": warnings}  # fmt: skip
 
     @torch.no_grad()
     def _network(self, clouds: list[np.ndarray]) -> dict[str, torch.Tensor]:
@@ -269,6 +375,10 @@ class Fitter:
             t2 = time.perf_counter()
             q = fit_quality(ref_in[i], verts[i], self.vertex_parts, self.subset, betas[i], probs_ref[i],
                             self.thresholds)  # fmt: skip
+            cleaned = it.get("clean")
+            if cleaned is not None and "second_body" in cleaned.flags:
+                q["flags"].append("second_body")
+                q.update({f"second_body_{k}": v for k, v in cleaned.second_cluster.items()})
             s = it["scale"]
             keep = it["keep"]
             n_all = len(keep)
@@ -279,9 +389,10 @@ class Fitter:
             _, nn = trees[i].query(it["centred"])
             lab[keep] = probs_net[i][nn].argmax(-1)
             conf[keep] = probs_net[i][nn].max(-1)
-            d, vi = cKDTree(verts[i]).query(it["centred"])
-            fit_lab[keep] = self.vertex_parts[vi]
-            dist[keep] = d / s
+            finite = it.get("finite", keep)
+            d, vi = cKDTree(verts[i]).query(it.get("finite_centred", it["centred"]))
+            fit_lab[finite] = self.vertex_parts[vi]
+            dist[finite] = d / s
             status, message = "ok", ""
             warnings = list(it["warnings"])
             if q["flags"]:
@@ -314,8 +425,12 @@ class Fitter:
                     point_distance=dist,
                     scan_points=((ref_in[i] + c) / s).astype(np.float32),
                     scan_labels=probs_ref[i].argmax(-1).astype(np.int16),
+                    point_clutter=it.get("clutter"),
+                    clean=cleaned,
+                    clutter_points=_removed_points(it, c, s),
                     quality=q,
                     timings={
+                        "clean": it.get("clean_seconds", 0.0),
                         "network": per_scan_net,
                         "refine": per_scan_ref,
                         "check": time.perf_counter() - t2,
@@ -326,8 +441,18 @@ class Fitter:
                     warnings=warnings,
                 )
             )
-        for r in results:
-            r.timings["total"] = r.timings["network"] + r.timings["refine"] + r.timings["check"]
+        for i, r in enumerate(results):
+            t = r.timings
+            t["total"] = t["clean"] + t["network"] + t["refine"] + t["check"]
+            r.anny_note = self.anny_note
+            if self.anny_export is not None and r.status == "ok":
+                rot = roma.rotvec_to_rotmat(torch.as_tensor(pose_aa[i], dtype=torch.float64)).numpy()
+                try:
+                    r.anny = self.anny_export.export(betas[i], rot, verts[i] + items[i]["center"])
+                    t["anny"] = r.anny["seconds"]
+                except Exception as exc:  # noqa: BLE001 - the fit stands without its Anny export
+                    r.anny_note = f"failed: {type(exc).__name__}: {exc}"
+                    r.warnings.append(f"Anny export {r.anny_note}")
         return results
 
     def fit_points(self, points: np.ndarray, units: str = "m", name: str = "points") -> FitResult:
@@ -337,6 +462,17 @@ class Fitter:
         except ScanError as exc:
             return FitResult(name=name, status="error", message=str(exc), units=units)
         return self.fit_prepared([item])[0]
+
+
+def _removed_points(item: dict[str, Any], centre: np.ndarray, scale: float) -> np.ndarray | None:
+    """Up to 5000 of the points clutter removal dropped, in the file's frame and units (for previews)."""
+    cleaned = item.get("clean")
+    if cleaned is None or cleaned.keep.all():
+        return None
+    gone = item["finite_centred"][~cleaned.keep]
+    if len(gone) > 5000:
+        gone = gone[np.random.default_rng(0).choice(len(gone), 5000, replace=False)]
+    return ((gone + centre) / scale).astype(np.float32)
 
 
 _FITTERS: dict[tuple, Fitter] = {}
@@ -360,6 +496,7 @@ def fit_points(
     check: bool = True,
     name: str = "points",
     fitter: Fitter | None = None,
+    clean: bool = True,
 ) -> FitResult:
     """Fit the body to one point cloud ``[N, 3]`` given in ``units`` (``m``, ``cm`` or ``mm``).
 
@@ -369,5 +506,7 @@ def fit_points(
     """
     if isinstance(points, torch.Tensor):
         points = points.detach().cpu().numpy()
-    f = fitter or get_fitter(ckpt=ckpt, device=device, refine=refine, points=num_points, check=check)
+    f = fitter or get_fitter(
+        ckpt=ckpt, device=device, refine=refine, points=num_points, check=check, clean=clean
+    )
     return f.fit_points(points, units=units, name=name)

@@ -1,8 +1,9 @@
 """``arteq-fit INPUT... --out DIR``: fit the body model to scans (files, folders, globs).
 
 Writes ``<name>.obj`` (fitted mesh, scan frame and units), ``<name>.npz`` (parameters, joints, per-point
-parts), ``<name>.png`` (preview) per scan and ``summary.json`` / ``summary.csv`` for the run. Exit code
-0 when every input was fitted (or skipped), 1 when any failed, 2 on bad arguments.
+parts, clutter, Anny parameters), ``<name>.json`` (the same in words), ``<name>.png`` (preview) per scan
+and ``summary.json`` / ``summary.csv`` for the run. Exit code 0 when every input was fitted (or skipped),
+1 when any failed, 2 on bad arguments.
 """
 
 from __future__ import annotations
@@ -33,6 +34,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--overwrite", action="store_true", help="replace existing outputs (else skip them)")
     ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
                     help="fail fits that do not look like one body (default: on)")  # fmt: skip
+    ap.add_argument("--clean", action=argparse.BooleanOptionalAction, default=True,
+                    help="remove floors, walls, stray points, other objects first (default: on)")  # fmt: skip
+    ap.add_argument("--anny", action=argparse.BooleanOptionalAction, default=None,
+                    help="Anny phenotype, pose and body measurements per fit (default: when the anny "
+                    "package is installed and the body is an Anny body; --anny: required)")  # fmt: skip
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None, help="progress bar")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     return ap
@@ -59,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg.iters = args.iters
     try:
         fitter = Fitter(ckpt=args.ckpt, device=args.device, refine=args.refine, points=args.points,
-                        refine_config=cfg, check=args.check)  # fmt: skip
+                        refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny)  # fmt: skip
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"arteq-fit: {exc}", file=sys.stderr)
         return 2

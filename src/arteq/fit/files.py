@@ -1,7 +1,7 @@
 """Fit scan files and write the outputs: what ``arteq-fit`` runs.
 
-Per fitted scan ``<name>.obj`` / ``<name>.npz`` / ``<name>.png`` (written together and atomically:
-all three appear or none), and for the run ``summary.json`` / ``summary.csv`` (rewritten after each
+Per fitted scan ``<name>.obj`` / ``<name>.npz`` / ``<name>.json`` / ``<name>.png`` (written together and
+atomically: all appear or none), and for the run ``summary.json`` / ``summary.csv`` (rewritten after each
 batch). An input that fails gets a status and one message line; the batch goes on.
 """
 
@@ -28,7 +28,9 @@ from arteq.io.scans import ScanError, expand_inputs, read_scan
 
 SUMMARY_COLUMNS = [
     "input", "name", "status", "message", "inlier_frac", "rmse_in_cm", "mean_dist_cm", "coverage",
-    "parts_covered", "max_abs_beta", "extent_m", "flags", "seconds",
+    "parts_covered", "max_abs_beta", "extent_m", "flags", "removed_plane", "removed_outlier",
+    "removed_cluster", "stature_cm", "waist_cm", "mass_kg", "bmi", "age_years", "anny_rebuild_mm", "seconds",
+    "anny_seconds",
 ]  # fmt: skip
 
 
@@ -67,11 +69,12 @@ class RunSummary:
 
 
 def output_paths(out_dir: Path, name: str) -> dict[str, Path]:
-    return {ext: out_dir / f"{name}.{ext}" for ext in ("obj", "npz", "png")}
+    return {ext: out_dir / f"{name}.{ext}" for ext in ("obj", "npz", "json", "png")}
 
 
 def write_result(res: FitResult, out_dir: Path, preview: bool = True, source: str = "") -> list[Path]:
-    """Write ``<name>.obj``, ``<name>.npz`` (and ``<name>.png``) of a fitted scan, all or nothing."""
+    """Write ``<name>.obj``, ``<name>.npz``, ``<name>.json`` (and ``<name>.png``) of a fitted scan, all or
+    nothing."""
     paths = output_paths(out_dir, res.name)
     header = (
         f"arteq fit of {source or res.name}\nbody model {res.body_model}; checkpoint {res.checkpoint}\n"
@@ -83,6 +86,7 @@ def write_result(res: FitResult, out_dir: Path, preview: bool = True, source: st
         arrays = res.arrays()
         arrays["source"] = source
         written.append(files.write_bytes(paths["npz"], npz_bytes(arrays)))
+        written.append(files.write_bytes(paths["json"], json_bytes(res.to_json(source))))
         if preview:
             from arteq.fit.preview import render_preview
 

@@ -1,4 +1,5 @@
-"""Preview PNG of a fit: the scan coloured by predicted part next to the fitted mesh, two views.
+"""Preview PNG of a fit: the scan coloured by predicted part (removed clutter in grey) next to the
+fitted mesh, two views.
 
 Views are orthographic in the fitted body's own frame (front and left side, head up), whatever the
 scan's orientation. Drawn with matplotlib (Agg) as depth-sorted points: no 3D toolkit, fast.
@@ -40,7 +41,14 @@ def render_preview(res, out: str | Path, dpi: int = 80) -> Path:
     views = [("front", 0, 2, 1.0), ("side", 2, 0, -1.0)]  # name, horizontal axis, depth axis, sign
     fig, axes = plt.subplots(2, 2, figsize=(6.4, 6.6))
     lim = np.abs(np.concatenate([pts, verts])).max(0) + 0.05
+    clutter = getattr(res, "clutter_points", None)
+    clutter = to_body(clutter) if clutter is not None and len(clutter) else None
+    if clutter is not None:  # only what falls into the picture (floor under the feet, wall behind...)
+        clutter = clutter[np.all(np.abs(clutter) <= lim + 0.3, axis=1)]
     for row, (view, h, depth, sign) in enumerate(views):
+        if clutter is not None and len(clutter):
+            ch = sign * clutter[:, h] if h == 2 else clutter[:, h]
+            axes[row, 0].scatter(ch, clutter[:, 1], s=0.6, c="0.75", linewidths=0)
         order_p = np.argsort(sign * pts[:, depth])
         axes[row, 0].scatter(sign * pts[order_p, h] if h == 2 else pts[order_p, h], pts[order_p, 1],
                              s=1.0, c=cols[labels[order_p]], linewidths=0)  # fmt: skip
@@ -57,9 +65,13 @@ def render_preview(res, out: str | Path, dpi: int = 80) -> Path:
             ax.set_yticks([])
             ax.set_title(f"{'scan (predicted parts)' if col == 0 else 'fitted mesh'}, {view}", fontsize=8)
     q = res.quality
+    removed = ""
+    if getattr(res, "clean", None) is not None:
+        n = sum(v for k, v in res.clean.counts.items() if k != "kept")
+        removed = f"; {n} clutter points removed (grey)" if n else ""
     fig.suptitle(
         f"{res.name}: {res.status}; {q.get('inlier_frac', float('nan')):.0%} inliers, "
-        f"rmse {q.get('rmse_in_cm', float('nan')):.2f} cm",
+        f"rmse {q.get('rmse_in_cm', float('nan')):.2f} cm{removed}",
         fontsize=9,
     )
     fig.tight_layout()

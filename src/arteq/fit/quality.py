@@ -10,6 +10,9 @@
 | ``max_abs_beta`` | shape plausibility (units of sigma) | > ``max_beta`` (``implausible_shape``) |
 | ``extent_m`` | robust size of the cloud | outside ``extent_m_range`` (``wrong_size``) |
 
+Clutter removal (:mod:`arteq.fit.clean`) adds the flag ``second_body`` when the scan holds a second
+body-sized cluster apart from the fitted one (two people).
+
 One human body with 10 % outliers and 5 mm noise sits well inside every threshold; two bodies side by
 side, a sphere or a box fail at least one (measured: ``experiments/fitting/README.md``).
 """
@@ -109,5 +112,10 @@ def describe_flags(q: dict) -> str:
         "missing_parts": f"points on only {q['parts_covered']} of 22 body parts",
         "implausible_shape": f"implausible shape (|beta| {q['max_abs_beta']:.1f})",
         "wrong_size": f"size {q['extent_m']:.2f} m",
+        "second_body": (
+            f"a second body-sized object beside it ({q.get('second_body_points', 0)} points, "
+            f"{q.get('second_body_extent_m', 0.0):.1f} m across, "
+            f"{q.get('second_body_gap_m', 0.0):.2f} m away)"
+        ),
     }
     return "; ".join(parts[f] for f in q["flags"])

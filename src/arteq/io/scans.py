@@ -204,11 +204,14 @@ def robust_extent(points: np.ndarray, lo: float = 1.0, hi: float = 99.0) -> floa
     return float((q[1] - q[0]).max())
 
 
-def check_body_size(points_m: np.ndarray, path: str | Path, units: str) -> float:
+def check_body_size(
+    points_m: np.ndarray, path: str | Path, units: str, limits_m: tuple[float, float] = (0.4, 3.5)
+) -> float:
     """Robust extent in metres of a cloud already scaled to metres; :class:`ScanError` if it cannot be
-    one human body in the stated units (0.4 m .. 3.5 m), suggesting the ``--units`` flag that fits."""
+    one human body in the stated units (``limits_m``, 0.4 m .. 3.5 m; wider for a scan with its room
+    still in it), suggesting the ``--units`` flag that fits."""
     ext = robust_extent(points_m)
-    if 0.4 <= ext <= 3.5:
+    if limits_m[0] <= ext <= limits_m[1]:
         return ext
     in_units = ext / UNITS[units]
     hint = ""
@@ -218,5 +221,5 @@ def check_body_size(points_m: np.ndarray, path: str | Path, units: str) -> float
             break
     raise ScanError(
         f"{path}: the cloud is {in_units:.4g} {units} across, a human body is about 1.7 m "
-        f"(expected 0.4-3.5 m with --units {units}){hint}"
+        f"(expected {limits_m[0]:g}-{limits_m[1]:g} m with --units {units}){hint}"
     )
