@@ -9,8 +9,12 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
+from omegaconf import open_dict
 
+from arteq.paths import conf_dir
+from arteq.training import validate
 from arteq.training.validate import ConfigError, validate_train_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -18,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module", autouse=True)
 def _hydra():
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
         yield
 
 
@@ -82,3 +86,116 @@ def test_command_line_exits_with_one_line_before_training(tmp_path):
                       "(500..5000 in the paper's study; 5000 = paper)"], proc.stderr[-2000:]  # fmt: skip
     assert "Traceback" not in proc.stderr
     assert not list(tmp_path.glob("**/checkpoints")) and not list(tmp_path.glob("**/*.ckpt"))
+
+
+# ---------------------------------------------------------------- every validated name list = its consumer's
+
+
+def test_bodies_are_create_bodys_and_toy_is_accepted():
+    from arteq.body import create_body
+    from arteq.body.model import BodyModelFileError
+
+    for name in ("toy", "anny_allages"):  # built without a file: no model_path needed
+        validate_train_config(_cfg(f"body_model.name={name}"))
+    assert isinstance(create_body({"name": "toy"}), torch.nn.Module)
+    for name in validate.BODY_MODELS:  # each gets past create_body's dispatch (no "unknown body model")
+        if name == "toy":
+            continue
+        with pytest.raises(BodyModelFileError):
+            create_body({"name": name, "model_path": "/no/such/body.npz"})
+    with pytest.raises(ValueError, match="unknown body model"):
+        create_body({"name": "smplx"})
+    with pytest.raises(ConfigError, match="body_model.name='smplx': allowed: .*anny22.*toy"):
+        validate_train_config(_cfg("body_model.name=smplx"))
+
+
+def test_augments_architectures_losses_and_splits_are_their_owners():
+    from arteq.data.dataset import AUGMENTS, augmentation_rotation, seeded_generator
+    from arteq.models.registry import ARCHITECTURES
+    from arteq.results import TEST_SPLITS
+    from arteq.training.losses import DEFAULT_WEIGHTS
+
+    assert validate.AUGMENTS is AUGMENTS
+    for kind in validate.AUGMENTS:
+        assert augmentation_rotation(kind, seeded_generator(kind)).shape == (3, 3)
+    assert validate.ARCHS == tuple(ARCHITECTURES)
+    assert all(isinstance(ARCHITECTURES[a].load(), type) for a in validate.ARCHS)
+    with pytest.raises(ConfigError) as info:
+        validate_train_config(_cfg("+model.loss_weights.chamfer=1.0"))
+    assert str(info.value).endswith(" | ".join(DEFAULT_WEIGHTS))
+    cfg = _cfg()
+    with open_dict(cfg):
+        cfg.data.test_splits = list(TEST_SPLITS)
+        validate_train_config(cfg)
+        cfg.data.test_splits = ["test_id", "test_hard"]
+    with pytest.raises(
+        ConfigError, match="data.test_splits=.*test_hard.*allowed: a non-empty list of test_id"
+    ):
+        validate_train_config(cfg)
+
+
+def test_precisions_are_lightnings():
+    from typing import get_args
+
+    import lightning as L
+    from lightning.fabric.connector import _PRECISION_INPUT_STR, _convert_precision_to_unified_args
+
+    assert {"32-true", "bf16-mixed", "16-mixed", "64", "bf16", "transformer-engine"} <= set(
+        validate.PRECISIONS
+    )
+    for p in validate.PRECISIONS:
+        value = int(p) if p.isdigit() else p
+        assert _convert_precision_to_unified_args(value) in get_args(_PRECISION_INPUT_STR), p
+    validate_train_config(_cfg("trainer.precision=bf16-true"))
+    with pytest.raises(ValueError, match="8-mixed"):  # what validate refuses, Lightning refuses too
+        L.Trainer(precision="8-mixed", logger=False)
+
+
+def test_data_sources_are_the_datamodules():
+    from arteq.data import BodyScanDataModule
+
+    with pytest.raises(ValueError) as info:
+        BodyScanDataModule(source="mocap", body_model={"name": "toy"})
+    for source in validate.DATA_SOURCES:
+        assert repr(source) in str(info.value)
+
+
+PARTIAL = "+model.optimizer._partial_"
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        ["model.optimizer.name=adamw", "+model.optimizer.weight_decay=0.01"],
+        ["model.scheduler.name=none"],
+        ["model.scheduler.name=step", "+model.scheduler.step_size=2"],
+        ["~model.optimizer.name", "+model.optimizer._target_=torch.optim.AdamW", f"{PARTIAL}=true"],
+        ["~model.scheduler.name", "+model.scheduler._target_=torch.optim.lr_scheduler.ExponentialLR",
+         "+model.scheduler._partial_=true", "+model.scheduler.gamma=0.9"],
+    ],
+)  # fmt: skip
+def test_optimizer_and_scheduler_by_name_or_partial(overrides):
+    validate_train_config(_cfg(*overrides))
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (["model.optimizer.name=sgd"], "model.optimizer.name='sgd': allowed: adam | adamw"),
+        (["model.scheduler.name=linear"], "model.scheduler.name='linear': allowed: none | cosine | step"),
+        (["model.scheduler.name=step"], "model.scheduler.step_size=None: allowed: an integer >= 1"),
+        (["+model.optimizer._target_=torch.optim.AdamW", "+model.optimizer._partial_=true"],
+         "model.optimizer.name='adam': allowed: no name beside model.optimizer._target_"),
+        (["~model.optimizer.name", "+model.optimizer._target_=torch.optim.AdamW"],
+         "model.optimizer._partial_=None: allowed: true"),
+        (["~model.optimizer.name", "+model.optimizer._target_=torch.optim.Nope", f"{PARTIAL}=true"],
+         "model.optimizer._target_='torch.optim.Nope': allowed: an importable optimizer"),
+        (["~model.scheduler.name", "+model.scheduler._target_=torch.optim.lr_scheduler.StepLR",
+          "+model.scheduler._partial_=true", "+model.scheduler.interval=batch"],
+         "model.scheduler.interval='batch': allowed: step | epoch"),
+    ],
+)  # fmt: skip
+def test_bad_optimizer_or_scheduler_names_the_key(overrides, message):
+    with pytest.raises(ConfigError) as info:
+        validate_train_config(_cfg(*overrides))
+    assert message in str(info.value), str(info.value)

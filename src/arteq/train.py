@@ -36,7 +36,7 @@ from arteq.training.plan import (
     plan_run,
     shared_plan,
 )
-from arteq.training.trainer import build_trainer, finish_wandb
+from arteq.training.trainer import build_trainer, finish_wandb, stage_config
 from arteq.training.validate import exit_on_config_error, validate_train_config
 
 __all__ = ["build_datamodule", "build_module", "find_stage1_checkpoint", "latest_checkpoint", "main",
@@ -54,11 +54,13 @@ def fit_and_test(
 
     output_dir.mkdir(parents=True, exist_ok=True)
     resume_ckpt = plan["resume"].get(str(stage))
+    # this stage's config: its folder and epochs in paths.output_dir / trainer.max_epochs, read from there
+    # by the trainer, the checkpoint callbacks and the loggers (conf/)
+    cfg = stage_config(cfg, output_dir, max_epochs=max_epochs, resuming=bool(resume_ckpt))
     datamodule, module = build_datamodule(cfg, body), build_module(cfg, stage, body)
     if init_ckpt is not None:
         module.load_net_weights(str(init_ckpt))
-    trainer = build_trainer(cfg, output_dir, max_epochs=max_epochs, resuming=bool(resume_ckpt),
-                            extra_callbacks=[SamePlanOnAllRanks(plan)])  # fmt: skip
+    trainer = build_trainer(cfg, extra_callbacks=[SamePlanOnAllRanks(plan)])
     n_params = sum(p.numel() for p in module.net.parameters())
     log.info("stage %d: ArtEq network with %s parameters -> %s", stage, f"{n_params:,}", output_dir)
     if resume_ckpt:

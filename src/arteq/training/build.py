@@ -25,7 +25,10 @@ from arteq.training.module import ArtEqModule
 
 
 def build_body(cfg: DictConfig) -> BodyModel:
-    """The body model of ``cfg.body_model`` (:func:`arteq.body.create_body`)."""
+    """The body model of ``cfg.body_model``, instantiated from its ``_target_`` (``conf/body_model/``:
+    :func:`arteq.body.create_body`); a config without one goes to ``create_body``."""
+    if "_target_" in cfg.body_model:
+        return hydra.utils.instantiate(cfg.body_model)
     return create_body(cfg.body_model)
 
 

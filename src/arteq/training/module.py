@@ -16,6 +16,7 @@ from arteq.models.registry import build_net
 from arteq.results import TEST_SPLITS, metric_values
 from arteq.training.losses import DEFAULT_WEIGHTS, arteq_losses
 from arteq.training.metrics import BodyFitMetrics
+from arteq.training.optim import DEFAULT_OPTIMIZER, DEFAULT_SCHEDULER, build_optimizer, build_scheduler
 
 
 def marker_vertices(template: np.ndarray, count: int) -> np.ndarray:
@@ -67,8 +68,10 @@ class ArtEqModule(L.LightningModule):
         stage: 1 pools part features with ground-truth labels (all modules trained); 2 pools with
             the predicted part probabilities (end to end).
         loss_weights: see :mod:`arteq.training.losses`.
-        optimizer: ``{"name": "adam"|"adamw", "lr": ..., "weight_decay": ...}``.
-        scheduler: ``{"name": "none"|"cosine"|"step", ...}``.
+        optimizer: a Hydra partial (``{"_target_": "torch.optim.Adam", "_partial_": True, "lr": ...}``) or
+            the earlier ``{"name": "adam"|"adamw", "lr": ..., "weight_decay": ...}``
+            (:mod:`arteq.training.optim`).
+        scheduler: a Hydra partial with ``interval``, or ``{"name": "none"|"cosine"|"step", ...}``.
         markers: number of marker vertices weighted ``marker_weight`` in the vertex loss.
         data: the data configuration trained on; recorded in checkpoints (provenance, and so that a
             stage-2 run only picks up a stage-1 run trained on the same kind of data), not used here.
@@ -103,8 +106,8 @@ class ArtEqModule(L.LightningModule):
                 "body_model": body_model,
                 "stage": stage,
                 "loss_weights": dict(_plain(loss_weights) or DEFAULT_WEIGHTS),
-                "optimizer": dict(_plain(optimizer) or {"name": "adam", "lr": 1e-4}),
-                "scheduler": dict(_plain(scheduler) or {"name": "none"}),
+                "optimizer": dict(_plain(optimizer) or DEFAULT_OPTIMIZER),
+                "scheduler": dict(_plain(scheduler) or DEFAULT_SCHEDULER),
                 "markers": markers,
                 "marker_weight": marker_weight,
                 "data": dict(_plain(data) or {}),
@@ -235,36 +238,14 @@ class ArtEqModule(L.LightningModule):
 
     # ------------------------------------------------------------------ optimisation
     def configure_optimizers(self):
-        opt_cfg = dict(self.hparams.optimizer)
-        name = opt_cfg.pop("name", "adam").lower()
-        classes = {"adam": torch.optim.Adam, "adamw": torch.optim.AdamW}
-        if name not in classes:
-            raise ValueError(f"optimizer.name must be one of {sorted(classes)}, got {name!r}")
-        optimizer = classes[name](self.net.parameters(), **opt_cfg)
-        sched_cfg = dict(self.hparams.scheduler)
-        sname = sched_cfg.pop("name", "none").lower()
-        if sname == "none":
-            return optimizer
-        if sname == "cosine":
-            total = self.trainer.estimated_stepping_batches
-            warmup = int(sched_cfg.get("warmup_steps", 0))
-            min_ratio = float(sched_cfg.get("min_lr_ratio", 0.05))
-
-            def factor(step: int) -> float:
-                if step < warmup:
-                    return (step + 1) / warmup
-                t = min(1.0, (step - warmup) / max(1, total - warmup))
-                # plain float: a numpy scalar in the scheduler state breaks weights_only checkpoint loading
-                return float(min_ratio + (1 - min_ratio) * 0.5 * (1 + np.cos(np.pi * t)))
-
-            sched = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
-            return {"optimizer": optimizer, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
-        if sname == "step":
-            sched = torch.optim.lr_scheduler.StepLR(
-                optimizer, step_size=int(sched_cfg["step_size"]), gamma=float(sched_cfg.get("gamma", 0.1))
-            )
-            return {"optimizer": optimizer, "lr_scheduler": sched}
-        raise ValueError(f"scheduler.name must be none, cosine or step, got {sname!r}")
+        """``model.optimizer`` / ``model.scheduler`` (Hydra partials, or the earlier ``{name: ...}`` form):
+        :mod:`arteq.training.optim`."""
+        optimizer = build_optimizer(dict(self.hparams.optimizer), self.net.parameters())
+        # the number of steps only when the schedule asks for it (Lightning sets up the training data for it)
+        sched = build_scheduler(
+            dict(self.hparams.scheduler), optimizer, lambda: self.trainer.estimated_stepping_batches
+        )
+        return optimizer if sched is None else {"optimizer": optimizer, "lr_scheduler": sched}
 
     # ------------------------------------------------------------------ stage 2 initialisation
     def load_net_weights(self, ckpt_path: str) -> None:

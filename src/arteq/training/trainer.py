@@ -1,21 +1,23 @@
-"""The Lightning ``Trainer`` of a run: callbacks and loggers from the config, wandb run names.
+"""The Lightning ``Trainer`` of a run, from the config: trainer, callbacks and loggers as ``conf/`` says.
 
-Checkpoints of every checkpoint callback go to ``<output_dir>/checkpoints`` (a stage 1 trained inside a
-stage-2 run has its own ``output_dir``, ``<run>/stage1``); a resumed run's CSV log goes beside the
-earlier one instead of replacing it.
+Where a stage writes and for how many epochs come from the YAML: ``trainer.default_root_dir``, every
+checkpoint callback's ``dirpath`` and every logger's ``save_dir`` interpolate ``${paths.output_dir}``,
+and ``trainer.max_epochs`` is the stage's epochs. :func:`stage_config` derives the config of one stage
+from the run's (its folder, ``<run>/stage1`` for a stage 1 trained inside a stage-2 run; its epochs;
+the CSV version of a resumed run, which goes beside the earlier log instead of replacing it; the wandb
+names); :func:`build_trainer` instantiates what that config says and changes nothing.
 """
 
 from __future__ import annotations
 
+import copy
 import time
 from pathlib import Path
 from typing import Any
 
 import hydra
 import lightning as L
-from omegaconf import DictConfig
-
-from arteq.io.runs import checkpoint_dir
+from omegaconf import DictConfig, open_dict
 
 
 def instantiate_all(cfg: DictConfig | None) -> list[Any]:
@@ -25,32 +27,42 @@ def instantiate_all(cfg: DictConfig | None) -> list[Any]:
     return [hydra.utils.instantiate(c) for c in cfg.values() if c is not None and "_target_" in c]
 
 
-def build_trainer(
-    cfg: DictConfig,
-    output_dir: Path,
-    max_epochs: int | None = None,
-    resuming: bool = False,
-    extra_callbacks: list[L.Callback] | None = None,
-) -> L.Trainer:
-    """``cfg.trainer`` with the configured callbacks (plus ``extra_callbacks``) and loggers, writing
-    into ``output_dir``; ``max_epochs`` overrides the config's (an inner stage 1)."""
-    callbacks = instantiate_all(cfg.get("callbacks")) + list(extra_callbacks or [])
-    for cb in callbacks:  # keep checkpoints inside the (sub-)run folder
-        if isinstance(cb, L.pytorch.callbacks.ModelCheckpoint):
-            cb.dirpath = str(checkpoint_dir(output_dir))
-    loggers = []
-    for name, lg_cfg in (cfg.get("logger") or {}).items():
-        if lg_cfg is not None and "_target_" in lg_cfg:
-            extra = {}
-            if resuming and name == "csv":  # CSVLogger would delete the earlier metrics.csv
-                extra["version"] = time.strftime("resumed-%Y%m%d-%H%M%S")
-            if name == "wandb":
-                extra.update(wandb_run_names(cfg, output_dir, lg_cfg))
-            loggers.append(hydra.utils.instantiate(lg_cfg, save_dir=str(output_dir), **extra))
-    kwargs: dict[str, Any] = {"default_root_dir": str(output_dir)}
+def _loggers(cfg: DictConfig) -> dict[str, Any]:
+    return {n: lg for n, lg in (cfg.get("logger") or {}).items() if lg is not None and "_target_" in lg}
+
+
+def stage_config(
+    cfg: DictConfig, output_dir: str | Path, max_epochs: int | None = None, resuming: bool = False
+) -> DictConfig:
+    """The config of one stage writing into ``output_dir``: a copy of ``cfg`` with ``paths.output_dir``
+    set to it (the trainer, checkpoint callbacks and loggers follow through their interpolations),
+    ``trainer.max_epochs`` set to ``max_epochs`` when given (an inner stage 1: ``stage1.epochs``), a
+    ``resumed-<time>`` CSV version when ``resuming`` (CSVLogger would delete the earlier metrics.csv),
+    and the wandb group and run name where ``logger.wandb`` leaves them null (:func:`wandb_run_names`).
+    ``cfg`` itself is not changed."""
+    changes: dict[str, Any] = {"paths": {"output_dir": str(output_dir)}}
     if max_epochs is not None:
-        kwargs["max_epochs"] = max_epochs
-    return hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False, **kwargs)
+        changes["trainer"] = {"max_epochs": int(max_epochs)}
+    loggers = _loggers(cfg)
+    logger_changes: dict[str, Any] = {}
+    if resuming and "csv" in loggers:
+        logger_changes["csv"] = {"version": time.strftime("resumed-%Y%m%d-%H%M%S")}
+    if "wandb" in loggers:
+        logger_changes["wandb"] = wandb_run_names(cfg, Path(output_dir), loggers["wandb"])
+    if logger_changes:
+        changes["logger"] = logger_changes
+    out = copy.deepcopy(cfg)
+    with open_dict(out):  # a custom logger config may lack a key set here
+        out.merge_with(changes)
+    return out
+
+
+def build_trainer(cfg: DictConfig, extra_callbacks: list[L.Callback] | None = None) -> L.Trainer:
+    """``cfg.trainer`` with the configured callbacks (plus ``extra_callbacks``) and loggers; ``cfg`` is a
+    stage's config (:func:`stage_config`)."""
+    callbacks = instantiate_all(cfg.get("callbacks")) + list(extra_callbacks or [])
+    loggers = [hydra.utils.instantiate(lg) for lg in _loggers(cfg).values()]
+    return hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
 
 
 def wandb_run_names(cfg: DictConfig, output_dir: Path, lg_cfg: DictConfig) -> dict[str, str]:

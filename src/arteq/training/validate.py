@@ -17,24 +17,37 @@ from typing import Any
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue
 
-#: Values of ``trainer.precision`` (Lightning's names).
-PRECISIONS = (
-    "32-true",
-    "32",
-    "64-true",
-    "64",
-    "16-mixed",
-    "bf16-mixed",
-    "16-true",
-    "bf16-true",
-    "16",
-    "bf16",
-)
-ARCHS = ("arteq", "pointnet2")
-BODY_MODELS = ("anny22", "smpl", "smplh", "smpl-h")
-OPTIMIZERS = ("adam", "adamw")
-SCHEDULERS = ("none", "cosine", "step")
-AUGMENTS = ("none", "so3", "z")  # arteq.data.dataset.AUGMENTS (not imported: keep this module light)
+from arteq.body.model import ANNY_BODIES, BODY_NAMES
+from arteq.data.dataset import AUGMENTS
+from arteq.models.registry import ARCHITECTURES, DEFAULT_ARCH
+from arteq.results import TEST_SPLITS
+from arteq.training import optim
+from arteq.training.losses import DEFAULT_WEIGHTS
+
+# The allowed values come from the code that consumes them (tests/test_config_validation.py pins each list
+# to its consumer); only what that code keeps no list of is spelled out here.
+
+
+def _lightning_precisions() -> tuple[str, ...]:
+    """Every ``trainer.precision`` Lightning accepts (its ``_PRECISION_INPUT`` type), as strings."""
+    from typing import get_args
+
+    from lightning.fabric.connector import _PRECISION_INPUT
+
+    return tuple(str(v) for group in get_args(_PRECISION_INPUT) for v in get_args(group))
+
+
+#: Values of ``trainer.precision``: Lightning's names and aliases (``32``, ``bf16``...).
+PRECISIONS = _lightning_precisions()
+#: Architectures of ``model.net.arch`` (:data:`arteq.models.registry.ARCHITECTURES`).
+ARCHS = tuple(ARCHITECTURES)
+#: Bodies :func:`arteq.body.create_body` builds: those of :func:`arteq.body.model.load_body_model`
+#: (:data:`~arteq.body.model.BODY_NAMES`) and the procedural ``toy`` body it builds itself.
+BODY_MODELS = (*BODY_NAMES, "toy")
+#: Bodies built without a file from the user (``body_model.model_path: null``).
+FILELESS_BODIES = (*ANNY_BODIES, "toy")
+#: ``data.source`` values (:class:`arteq.data.BodyScanDataModule` checks them but keeps no list).
+DATA_SOURCES = ("synthetic", "amass")
 _MISSING = object()
 
 
@@ -118,7 +131,8 @@ def world_size(cfg: DictConfig) -> int | None:
 def validate_body_model(cfg: DictConfig) -> None:
     name = str(_one_of(cfg, "body_model.name", BODY_MODELS)).lower()
     path = _get(cfg, "body_model.model_path")
-    if name != "anny22" and (path is None or path is _MISSING):
+    fileless = name in FILELESS_BODIES
+    if not fileless and (path is None or path is _MISSING):
         raise ConfigError(
             "body_model.model_path",
             _MISSING,
@@ -127,8 +141,8 @@ def validate_body_model(cfg: DictConfig) -> None:
     _existing_path(
         cfg,
         "body_model.model_path",
-        "null (the cached anny22 build)" if name == "anny22" else "an existing model file or folder",
-        folder_ok=name != "anny22",
+        f"null (the cached {name} build)" if fileless else "an existing model file or folder",
+        folder_ok=not fileless,
     )
     _int_at_least(cfg, "body_model.num_betas", 1)
 
@@ -157,7 +171,7 @@ def validate_amass(cfg: DictConfig) -> None:
 
 
 def validate_data(cfg: DictConfig, processes: int | None = None) -> None:
-    source = _one_of(cfg, "data.source", ("synthetic", "amass"))
+    source = _one_of(cfg, "data.source", DATA_SOURCES)
     if source == "amass":
         _existing_path(cfg, "data.amass_root", AMASS_ROOT, True)
         if _get(cfg, "data.amass_root") is None:
@@ -169,6 +183,11 @@ def validate_data(cfg: DictConfig, processes: int | None = None) -> None:
         raise ConfigError("data.noise_std", noise, "metres in [0, 0.05) (e.g. 0.001 = 1 mm)")
     _one_of(cfg, "data.augment", AUGMENTS)
     _one_of(cfg, "data.eval_augment", AUGMENTS)
+    splits = _get(cfg, "data.test_splits")
+    if splits is not None and (
+        not isinstance(splits, list) or not splits or any(s not in TEST_SPLITS for s in splits)
+    ):
+        raise ConfigError("data.test_splits", splits, f"a non-empty list of {' | '.join(TEST_SPLITS)}")
     synthetic = source == "synthetic"
     sizes = {}
     for key in ("train_size", "val_size", "test_size"):
@@ -206,7 +225,7 @@ def _point_counts(n: int, strides: list[int]) -> list[int]:
 
 
 def validate_model(cfg: DictConfig) -> None:
-    arch = _one_of(cfg, "model.net.arch", ARCHS, default="arteq")
+    arch = _one_of(cfg, "model.net.arch", ARCHS, default=DEFAULT_ARCH)
     n = _get(cfg, "data.num_points")
     if arch == "arteq":
         bb = "model.net.backbone"
@@ -247,14 +266,9 @@ def validate_model(cfg: DictConfig) -> None:
                     "model.net.npoints", npoints, f"decreasing integers with npoints[{i}] in 1..{prev}"
                 )
             prev = m
-    _one_of(cfg, "model.optimizer.name", OPTIMIZERS, default="adam")
-    _positive_float(cfg, "model.optimizer.lr", " (e.g. 1e-4 for the paper, 3e-3 for the CPU default)")
-    wd = _get(cfg, "model.optimizer.weight_decay", 0.0)
-    if not (isinstance(wd, int | float) and math.isfinite(wd) and wd >= 0):
-        raise ConfigError("model.optimizer.weight_decay", wd, "a finite number >= 0")
-    _one_of(cfg, "model.scheduler.name", SCHEDULERS, default="none")
+    validate_optimization(cfg)
     weights = _get(cfg, "model.loss_weights") or {}
-    known = ("pose", "global_rot", "betas", "verts", "joints", "parts")
+    known = tuple(DEFAULT_WEIGHTS)
     for k, w in weights.items():
         if k not in known:
             raise ConfigError(f"model.loss_weights.{k}", w, f"a weight for one of {' | '.join(known)}")
@@ -262,10 +276,37 @@ def validate_model(cfg: DictConfig) -> None:
             raise ConfigError(f"model.loss_weights.{k}", w, "a finite number >= 0")
 
 
+def _target_exists(key: str, target: str, what: str) -> None:
+    from hydra.utils import get_object
+
+    try:
+        get_object(str(target))
+    except Exception:  # noqa: BLE001 - Hydra raises ImportError or others for a bad path
+        raise ConfigError(key, target, what) from None
+
+
+def validate_optimization(cfg: DictConfig) -> None:
+    """``model.optimizer`` / ``model.scheduler``: a Hydra partial whose ``_target_`` imports, or a name of the
+    earlier form (:data:`arteq.training.optim.OPTIMIZERS` / :data:`~arteq.training.optim.SCHEDULERS`)."""
+    try:
+        opt = optim.optimizer_config(_get(cfg, "model.optimizer"))
+        sched = optim.scheduler_config(_get(cfg, "model.scheduler"))
+    except optim.OptimConfigError as e:
+        raise ConfigError(e.key, e.value, e.allowed) from None
+    _target_exists("model.optimizer._target_", opt["_target_"], "an importable optimizer (torch.optim.AdamW)")
+    if sched is not None:
+        what = "an importable scheduler (arteq.training.optim.warmup_cosine)"
+        _target_exists("model.scheduler._target_", sched["_target_"], what)
+    _positive_float(cfg, "model.optimizer.lr", " (e.g. 1e-4 for the paper, 3e-3 for the CPU default)")
+    wd = _get(cfg, "model.optimizer.weight_decay", 0.0)
+    if not (isinstance(wd, int | float) and math.isfinite(wd) and wd >= 0):
+        raise ConfigError("model.optimizer.weight_decay", wd, "a finite number >= 0")
+
+
 def validate_trainer(cfg: DictConfig) -> None:
     precision = _get(cfg, "trainer.precision", "32-true")
     if str(precision) not in PRECISIONS:
-        raise ConfigError("trainer.precision", precision, " | ".join(PRECISIONS[:6]))
+        raise ConfigError("trainer.precision", precision, " | ".join(PRECISIONS))
     devices = _get(cfg, "trainer.devices", 1)
     if not (devices == "auto" or world_size(cfg) is not None or devices == -1):
         raise ConfigError("trainer.devices", devices, "an integer >= 1, -1 (all), 'auto' or a list of ids")

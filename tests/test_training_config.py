@@ -1,0 +1,128 @@
+"""Optimisers, schedules and the trainer come from the config: Hydra partials (and the earlier ``{name: ...}``
+form, which the checkpoints trained so far hold), output folders and epochs from the YAML."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+import pytest
+import torch
+
+from arteq.io.runs import checkpoint_dir
+from arteq.training import optim
+from conftest import TINY_OVERRIDES, compose_config
+
+COSINE = {"name": "cosine", "warmup_steps": 3, "min_lr_ratio": 0.05}
+COSINE_PARTIAL = {"_target_": "arteq.training.optim.warmup_cosine", "_partial_": True, "warmup_steps": 3,
+                  "min_lr_ratio": 0.05, "interval": "step"}  # fmt: skip
+
+
+def _lrs(opt_cfg, sched_cfg, steps: int = 12) -> tuple[type, list[float]]:
+    params = [torch.nn.Parameter(torch.zeros(2))]
+    opt = optim.build_optimizer(opt_cfg, params)
+    sched = optim.build_scheduler(sched_cfg, opt, total_steps=10)
+    out = []
+    for _ in range(steps):
+        out.append(opt.param_groups[0]["lr"])
+        opt.step()
+        if sched is not None:
+            sched["scheduler"].step()
+    return type(opt), out
+
+
+@pytest.mark.parametrize(
+    "old, new",
+    [
+        (({"name": "adam", "lr": 3e-3}, COSINE),
+         ({"_target_": "torch.optim.Adam", "_partial_": True, "lr": 3e-3}, COSINE_PARTIAL)),
+        (({"name": "AdamW", "lr": 1e-3, "weight_decay": 0.01}, {"name": "step", "step_size": 4, "gamma": 0.5}
+          ),
+         ({"_target_": "torch.optim.AdamW", "_partial_": True, "lr": 1e-3, "weight_decay": 0.01},
+          {"_target_": "torch.optim.lr_scheduler.StepLR", "_partial_": True, "step_size": 4, "gamma": 0.5})),
+        (({"name": "adam", "lr": 1e-4}, {"name": "none"}),
+         ({"_target_": "torch.optim.Adam", "_partial_": True, "lr": 1e-4}, None)),
+    ],
+)  # fmt: skip
+def test_name_form_and_partial_build_the_same_optimizer_and_rates(old, new):
+    cls, old_lrs = _lrs(*old)
+    assert cls is type(optim.build_optimizer(new[0], [torch.nn.Parameter(torch.zeros(1))]))
+    assert _lrs(*new) == (cls, old_lrs)
+    assert optim.optimizer_config(old[0])["_target_"] == new[0]["_target_"]
+
+
+def test_warmup_cosine_is_the_earlier_schedule():
+    _, lrs = _lrs({"name": "adam", "lr": 1.0}, COSINE, steps=12)
+    assert lrs[:3] == pytest.approx([1 / 3, 2 / 3, 1.0])  # linear warm-up
+    assert lrs[3] == pytest.approx(1.0) and lrs[10] == pytest.approx(0.05) and lrs[11] == pytest.approx(0.05)
+    assert all(isinstance(x, float) for x in lrs)  # plain floats: weights_only checkpoints
+    assert optim.build_scheduler(COSINE, torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))]), 10)[
+        "interval"
+    ] == "step"  # fmt: skip
+
+
+def test_total_steps_is_asked_only_by_schedules_that_take_it():
+    opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=1.0)
+
+    def never() -> int:
+        raise AssertionError("total steps asked for")
+
+    step = optim.build_scheduler({"name": "step", "step_size": 1}, opt, never)
+    assert step["interval"] == "epoch" and isinstance(step["scheduler"], torch.optim.lr_scheduler.StepLR)
+    assert optim.build_scheduler({"name": "none"}, opt, never) is None
+    assert optim.build_scheduler(None, opt, never) is None
+
+
+def test_shipped_checkpoint_holds_the_name_form_and_builds():
+    from arteq.pretrained import resolve_checkpoint
+
+    hp = torch.load(resolve_checkpoint("anny22"), map_location="cpu", weights_only=True)["hyper_parameters"]
+    assert hp["optimizer"]["name"] == "adam" and hp["scheduler"]["name"] == "cosine"
+    opt = optim.build_optimizer(hp["optimizer"], [torch.nn.Parameter(torch.zeros(1))])
+    assert isinstance(opt, torch.optim.Adam) and opt.param_groups[0]["lr"] == hp["optimizer"]["lr"]
+    sched = optim.build_scheduler(hp["scheduler"], opt, 100)
+    assert isinstance(sched["scheduler"], torch.optim.lr_scheduler.LambdaLR)
+
+
+def test_stage_config_sets_folders_and_epochs_in_the_yaml_only(tmp_path):
+    from arteq.training.trainer import build_trainer, stage_config
+
+    cfg = compose_config(
+        [*TINY_OVERRIDES, f"paths.output_dir={tmp_path / 'run'}", "logger=tensorboard"], hydra_config=False
+    )
+    inner = stage_config(cfg, tmp_path / "run" / "stage1", max_epochs=3, resuming=True)
+    assert cfg.paths.output_dir == str(tmp_path / "run") and cfg.trainer.max_epochs == 1  # not changed
+    trainer = build_trainer(inner)
+    stage_dir = tmp_path / "run" / "stage1"
+    assert trainer.max_epochs == 3 and Path(trainer.default_root_dir) == stage_dir
+    ckpts = [cb for cb in trainer.callbacks if isinstance(cb, L.pytorch.callbacks.ModelCheckpoint)]
+    assert len(ckpts) == 3 and {Path(cb.dirpath) for cb in ckpts} == {checkpoint_dir(stage_dir)}
+    assert {Path(lg.save_dir) for lg in trainer.loggers} == {stage_dir}
+    csv_logger = next(lg for lg in trainer.loggers if isinstance(lg, L.pytorch.loggers.CSVLogger))
+    assert str(csv_logger.version).startswith("resumed-")  # beside the earlier log, not over it
+    outer = build_trainer(stage_config(cfg, tmp_path / "run"))
+    assert outer.max_epochs == 1 and Path(outer.default_root_dir) == tmp_path / "run"
+
+
+@pytest.mark.slow
+def test_name_form_checkpoint_resumes_under_a_partial_config(tmp_path):
+    """A run trained with ``{name: adam}`` / ``{name: cosine}`` (what conf/model says, and every checkpoint so
+    far) resumes with the optimizer and schedule written as partials: states restored, steps counted on."""
+    from arteq.train import train
+
+    base = [*TINY_OVERRIDES, "+experiment=stage1", "test=false", f"paths.output_root={tmp_path}"]
+    first = train(compose_config([*base, f"paths.output_dir={tmp_path / 'a'}"], hydra_config=False))
+    partial = ["~model.optimizer.name", "+model.optimizer._target_=torch.optim.Adam",
+               "+model.optimizer._partial_=true", "~model.scheduler.name",
+               "+model.scheduler._target_=arteq.training.optim.warmup_cosine",
+               "+model.scheduler._partial_=true", "+model.scheduler.interval=step"]  # fmt: skip
+    cfg = compose_config(
+        [*base, *partial, "trainer.max_epochs=2", f"ckpt_path={first['last_ckpt']}",
+         f"paths.output_dir={tmp_path / 'b'}"], hydra_config=False,
+    )  # fmt: skip
+    second = train(cfg)
+    state = torch.load(second["last_ckpt"], map_location="cpu", weights_only=True)
+    assert state["global_step"] == 4  # 2 steps per epoch (limit_train_batches=2), 2 epochs
+    assert state["lr_schedulers"][0]["last_epoch"] == 4
+    assert int(next(iter(state["optimizer_states"][0]["state"].values()))["step"]) == 4
+    assert state["hyper_parameters"]["optimizer"]["_target_"] == "torch.optim.Adam"
