@@ -1,12 +1,14 @@
 """Shared test settings: tiny network / run configs, config composition, body models.
 
-Tests take them as fixtures (``tiny_net``, ``tiny_overrides``, ``tiny_pn2_overrides``, ``compose``,
-``anny22``, ``toy_body``); the constants are the single place where "tiny" is defined.
+The constants ``TINY_NET`` (ArtEqNet keyword arguments), ``TINY_OVERRIDES`` / ``TINY_PN2_OVERRIDES``
+(Hydra overrides) are the single place where "tiny" is defined; tests import them, with
+:func:`compose_config` and :func:`subprocess_env`, from here (``from conftest import ...``). Fixtures:
+``tiny_pn2_overrides`` (a fresh copy of the PointNet++ list), ``anny22`` and ``toy_body`` (body models
+built once per session).
 """
 
 from __future__ import annotations
 
-import copy
 import os
 from pathlib import Path
 
@@ -62,24 +64,8 @@ def compose_config(overrides: list[str], config_name: str = "train", hydra_confi
 
 
 @pytest.fixture()
-def tiny_net() -> dict:
-    return copy.deepcopy(TINY_NET)
-
-
-@pytest.fixture()
-def tiny_overrides() -> list[str]:
-    return list(TINY_OVERRIDES)
-
-
-@pytest.fixture()
 def tiny_pn2_overrides() -> list[str]:
     return list(TINY_PN2_OVERRIDES)
-
-
-@pytest.fixture()
-def compose():
-    """``compose(overrides, config_name="train")``: a composed config."""
-    return compose_config
 
 
 @pytest.fixture(scope="session")

@@ -133,3 +133,19 @@ def test_bad_input(tmp_path):
         load_run(bad)
     with pytest.raises(ValueError, match="no runs"):
         write_report([], tmp_path / "out")
+
+
+def test_tab2_says_why_a_network_is_above_the_floor_on_id(tmp_path):
+    floor = {"test_id": {"v2v_cm": 19.0, "mpjpe_cm": 13.0}, "test_ood": {"v2v_cm": 71.0, "mpjpe_cm": 58.0}}
+    make_run(tmp_path, "a", acc=(37.9, 28.3), v2v=(20.9, 44.0), floor=floor)
+    make_run(tmp_path, "b", arch="pointnet2", acc=(48.1, 11.8), v2v=(24.1, 73.9))
+    make_run(tmp_path, "c", pc=False, acc=(60.0, 30.0), v2v=(12.0, 40.0))  # below the floor: not named
+    tab2 = _table(build_tables(find_runs([tmp_path])), "tab2_v2v_mpjpe")
+    assert tab2.note.startswith("ID V2V above the mean-pose floor's 19.00 cm: ArtEq")
+    assert "PointNet++ 24.10" in tab2.note and "nc" not in tab2.note
+    assert "ground-truth part labels" in tab2.note and "label 37.90-48.10 % of the ID points" in tab2.note
+    assert "PointNet++ 73.90 against the floor's 71.00 cm" in tab2.note
+    assert tab2.markdown().endswith(tab2.note)
+    # no note when every network is below the floor on ID
+    make_run(tmp_path / "low", "a", v2v=(2.0, 5.0), floor=floor)
+    assert _table(build_tables(find_runs([tmp_path / "low"])), "tab2_v2v_mpjpe").note == ""

@@ -26,8 +26,9 @@ from omegaconf import DictConfig, OmegaConf
 from torch import nn
 
 from arteq.io.runs import last_checkpoint
+from arteq.models.registry import display_name
 from arteq.paths import conf_dir
-from arteq.results import method_name
+from arteq.results import architecture, method_name
 from arteq.training.build import build_body, build_datamodule, build_module
 from arteq.training.plan import (
     SamePlanOnAllRanks,
@@ -62,7 +63,8 @@ def fit_and_test(
         module.load_net_weights(str(init_ckpt))
     trainer = build_trainer(cfg, extra_callbacks=[SamePlanOnAllRanks(plan)])
     n_params = sum(p.numel() for p in module.net.parameters())
-    log.info("stage %d: ArtEq network with %s parameters -> %s", stage, f"{n_params:,}", output_dir)
+    net_name = display_name(architecture(cfg))  # ArtEq, PointNet++ (models/registry.py)
+    log.info("stage %d: %s network with %s parameters -> %s", stage, net_name, f"{n_params:,}", output_dir)
     if resume_ckpt:
         log.info("stage %d: resuming from %s", stage, resume_ckpt)
     t0 = time.time()

@@ -8,7 +8,9 @@ A run folder (``outputs/<task>/<time>/``, or ``outputs/multirun/<task>/<time>/<j
     metrics.json, metrics.md    test results (everything / the Markdown table), written together
     stage1/                     a stage-1 run trained inside a stage-2 run (same layout, no metrics)
 
-A sweep is any folder holding run folders. Plain files only: no Lightning or torch import here.
+A sweep is any folder holding run folders. Importing this module loads neither Lightning nor torch
+(a report reads run folders without them); :func:`load_module` imports the LightningModule
+(and with it Lightning and torch) when it is called.
 """
 
 from __future__ import annotations

@@ -1,9 +1,14 @@
-"""The paper's training objective (Sup. Mat.), each term separately weighted.
+"""The paper's training objective (Sup. Mat.), each term separately weighted, plus one term of ours.
 
 ``L = w_pose L_pose + w_global_rot L_global_rot + w_betas L_betas + w_verts L_verts + w_joints L_joints
-+ w_parts L_parts``. Defaults follow the paper (5 / 50 / 100 / 100 / 5) plus a chordal term on the
-weighted rotation mean before its SVD projection (weight 5, as the authors' code supervises global
-rotations): it gives the pose head smooth gradients even while the mean is far from SO(3).
++ w_parts L_parts``. The paper's five terms and weights: pose, betas, vertices, joints, parts at
+5 / 50 / 100 / 100 / 5.
+
+``global_rot`` (weight 5) is not in the paper, and not the authors' either: their code adds an MSE
+between the *projected* global rotations (after the SVD) and the ground truth, weight 5. Ours is a
+chordal term on the weighted rotation mean ``M`` *before* its projection (``rot_mean``: no SVD in its
+gradient), which gives the pose head smooth gradients even while ``M`` is far from SO(3)
+(docs/training.md, "a chordal mean that cannot blow up").
 """
 
 from __future__ import annotations
