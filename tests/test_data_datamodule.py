@@ -8,6 +8,7 @@ from arteq.body.toy import ToyBody
 from arteq.data import BodyScanDataModule, BodyScanDataset, SyntheticIDPoses
 from arteq.data.dataset import seeded_generator
 from arteq.geometry.sampling import sample_surface, smooth_density_field
+from arteq.results import TEST_SPLITS
 
 KEYS = {
     "points": ((5000, 3), torch.float32),
@@ -35,7 +36,8 @@ def test_batches_of_all_splits(tmp_path):
     dm = _dm(tmp_path)
     dm.setup()
     loaders = {"train": dm.train_dataloader(), "val": dm.val_dataloader()}
-    loaders["test_id"], loaders["test_ood"] = dm.test_dataloader()
+    loaders |= dict(zip(dm.test_splits, dm.test_dataloader()))
+    assert list(loaders)[2:] == list(TEST_SPLITS)
     for split, loader in loaders.items():
         batch = next(iter(loader))
         assert set(batch) == set(KEYS), split
@@ -44,10 +46,11 @@ def test_batches_of_all_splits(tmp_path):
         assert batch["labels"].min() >= 0 and batch["labels"].max() < 22
         assert torch.allclose(batch["points"].mean(1), torch.zeros(3, 3), atol=1e-5)  # centred
         assert torch.isfinite(batch["points"]).all()
-    # test_ood bodies have arbitrary orientation, val / test_id ones are upright
+    # every OOD set's bodies have arbitrary orientation, val / test_id ones are upright
     up = lambda s: dm.datasets[s].tensors["pose"][:, 0, 1, 1]  # noqa: E731
     assert (up("test_id") > 0.85).all() and (up("val") > 0.85).all()
-    assert (up("test_ood") < 0.85).any()
+    for s in TEST_SPLITS[1:]:
+        assert (up(s) < 0.85).any(), s
 
 
 def test_deterministic_and_independent(tmp_path):
@@ -118,9 +121,9 @@ def test_augmentation_rotates_about_pelvis(body, augment):
 def test_fixed_sets_cached_and_reused(tmp_path, monkeypatch):
     dm = _dm(tmp_path)
     dm.setup("test")
-    assert sorted(dm.generated) == ["test_id", "test_ood"]
+    assert sorted(dm.generated) == sorted(TEST_SPLITS)
     files = sorted((tmp_path / "cache").glob("*.pt"))
-    assert len(files) == 2
+    assert len(files) == len(TEST_SPLITS)
     dm2 = _dm(tmp_path)
 
     def boom(*a, **k):
@@ -134,7 +137,7 @@ def test_fixed_sets_cached_and_reused(tmp_path, monkeypatch):
     # a config change gives a new key, hence a new file
     dm3 = _dm(tmp_path, noise_std=0.002)
     dm3.setup("validate")
-    assert dm3.generated == ["val"] and len(list((tmp_path / "cache").glob("*.pt"))) == 3
+    assert dm3.generated == ["val"] and len(list((tmp_path / "cache").glob("*.pt"))) == len(TEST_SPLITS) + 1
 
 
 def test_num_points_range_and_bad_config(tmp_path):

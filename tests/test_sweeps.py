@@ -13,7 +13,7 @@ from conftest import CONF
 from conftest import compose_config as _compose
 
 SWEEPS = {
-    "ablation_nc": {"model.net.parent_conditioning": "true,false"},
+    "ablation_nc": {"model.net.parent_conditioning": "invariant,aligned,none"},
     "ablation_aug": {"data.augment": "none,so3"},
     "ablation_points": {"data.num_points": "500,1000,2500,5000"},
 }
@@ -47,9 +47,9 @@ def test_variant_composes_and_builds(variant, tiny_pn2_overrides):
     cfg = _compose(["+experiment=ablation_all", f"+sweep/variant={variant}"] + (
         tiny_pn2_overrides if variant.startswith("pointnet2") else []))  # fmt: skip
     assert cfg.variant == variant
-    expect = {"arteq_nc": ("arteq", False, "none", 500), "arteq_so3": ("arteq", True, "so3", 500),
+    expect = {"arteq_nc": ("arteq", False, "none", 500), "arteq_so3": ("arteq", "invariant", "so3", 500),
               "pointnet2": ("pointnet2", None, "none", 500), "pointnet2_so3": ("pointnet2", None, "so3", 500),
-              "points_2500": ("arteq", True, "none", 2500)}.get(variant)  # fmt: skip
+              "points_2500": ("arteq", "invariant", "none", 2500)}.get(variant)  # fmt: skip
     if expect:
         arch, pc, aug, pts = expect
         assert cfg.model.net.get("arch", "arteq") == arch
@@ -87,30 +87,38 @@ def test_tiny_multirun_unique_dirs_and_report(tmp_path):
     sweeps = sorted((tmp_path / "out" / "multirun" / "ablation_nc").iterdir())
     assert len(sweeps) == 2
     jobs = [p.parent for p in (tmp_path / "out").rglob("metrics.json")]
-    assert len(jobs) == 4 and len(set(jobs)) == 4
+    assert len(jobs) == 6 and len(set(jobs)) == 6
     # wandb (offline): one run per job and stage (stage 1 is trained inside each stage-2 job)
     wandb_runs = sorted(p.name for p in sweeps[0].rglob("offline-run-*"))
-    assert len(wandb_runs) == 4 and len(set(wandb_runs)) == 4
-    for job in ("0", "1"):
+    assert len(wandb_runs) == 6 and len(set(wandb_runs)) == 6
+    for job in ("0", "1", "2"):
         assert len(list((sweeps[0] / job / "wandb").glob("offline-run-*"))) == 1
         assert len(list((sweeps[0] / job / "stage1" / "wandb").glob("offline-run-*"))) == 1
     from arteq.report import find_runs, write_report
 
     runs = find_runs([tmp_path / "out"])
-    assert sorted(r.method for r in runs) == ["ArtEq", "ArtEq", "ArtEq nc", "ArtEq nc"]
+    assert sorted(r.method for r in runs) == [
+        "ArtEq",
+        "ArtEq",
+        "ArtEq aligned",
+        "ArtEq aligned",
+        "ArtEq nc",
+        "ArtEq nc",
+    ]
     text = write_report(runs, tmp_path / "report", plots=False).read_text()
     assert "| ArtEq nc | 200 |" in text
 
 
-def test_backbone_radii_follow_point_density():
+def test_backbone_radii_are_metric_whatever_the_point_count():
+    # part-sized balls at every point count (the authors' radii in metres); the neighbour mean
+    # (backbone.normalize) is what lets them work at 500 points
     from arteq.config import radii_for_points
 
     paper = [0.08, 0.113, 0.16, 0.16]
     for n in (500, 1000, 2500, 5000):
-        radii = _compose([f"data.num_points={n}"]).model.net.backbone.radii
-        assert list(radii) == radii_for_points(paper, n)
-        # same expected ball population (points per area ~ N) as the paper's radii at 5000 points
-        assert abs(radii[0] ** 2 * n - 0.08**2 * 5000) < 0.01 * 0.08**2 * 5000
-    assert list(_compose(["data.num_points=5000"]).model.net.backbone.radii) == paper
+        net = _compose([f"data.num_points={n}"]).model.net
+        assert list(net.backbone.radii) == paper and net.backbone.normalize
+    # the old density-scaled radii stay available as a resolver: ${arteq.radii:[...],${data.num_points}}
+    assert radii_for_points(paper, 500)[0] == pytest.approx(0.253, abs=1e-3)
     with pytest.raises(ValueError, match="point counts"):
         radii_for_points(paper, 0)

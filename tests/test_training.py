@@ -12,6 +12,7 @@ import torch.nn.functional as F
 
 from arteq.config import radii_for_points
 from arteq.equivariant import element_orders, group_rotations
+from arteq.results import TEST_SPLITS
 from arteq.training.module import ArtEqModule
 from conftest import TINY_NET, TINY_OVERRIDES, compose_config
 
@@ -164,8 +165,9 @@ def test_eval_entry_point_writes_json_and_markdown(tmp_path):
     )  # fmt: skip
     evaluate(cfg)
     out = json.loads((tmp_path / "ev" / "metrics.json").read_text())
-    assert set(out["metrics"]) == {"test_id", "test_ood"}
-    assert "| ArtEq |" in (tmp_path / "ev" / "metrics.md").read_text()
+    assert set(out["metrics"]) == set(TEST_SPLITS)  # ID, the hard OOD set and the graded OOD scale
+    md = (tmp_path / "ev" / "metrics.md").read_text()
+    assert "| ArtEq |" in md and "OOD-1limb part_acc" in md
     bad = compose_config(["ckpt_path=/no/such.ckpt"], "eval", hydra_config=False)
     with pytest.raises(FileNotFoundError, match="ckpt_path=/no/such.ckpt: .*no such file"):
         evaluate(bad)

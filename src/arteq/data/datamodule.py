@@ -1,9 +1,12 @@
-"""``BodyScanDataModule``: train / val / test_id / test_ood loaders of synthetic body scans.
+"""``BodyScanDataModule``: train / val / test loaders of synthetic body scans.
 
 - ``train``: drawn on the fly, fresh every epoch (indices ``epoch * train_size + i``), ID source.
 - ``val``, ``test_id``: fixed ID sets with their own random streams (disjoint seed spaces; with AMASS,
   held-out motions). ``test_ood``: fixed OOD set (synthetic extremes, or AMASS MPI_Limits), always with a
-  random root orientation.
+  random root orientation. The graded OOD sets (synthetic with either source, any root orientation):
+  ``test_ood_limb1`` / ``test_ood_limb2`` (an everyday pose with one / two limbs from the OOD sampler) and
+  ``test_ood_contact`` (OOD poses without self-contact, PosePrior-like); ``test_splits`` chooses which
+  test sets run (default all, in the order of :data:`arteq.results.TEST_SPLITS`).
 - Fixed sets are generated once and cached under ``arteq.paths.cache_dir("datasets")``, keyed by a hash of
   everything that defines them (source, body, sizes, sampling, seed). A cache file holds plain tensors
   plus their SHA-256 and sample count (read with ``torch.load(weights_only=True)``); a file that is
@@ -48,15 +51,26 @@ from arteq.data.dataset import (
     ShardSampler,
     TensorDictDataset,
 )
-from arteq.data.poses import PoseSource, SyntheticIDPoses, SyntheticOODPoses
+from arteq.data.poses import (
+    ContactRejectedPoses,
+    LimbOODPoses,
+    PoseSource,
+    SyntheticIDPoses,
+    SyntheticOODPoses,
+)
 from arteq.geometry.pointops import fps_from_centroid
 from arteq.paths import cache_dir
+from arteq.results import TEST_SPLITS
 from arteq.runtime import one_thread
 
 log = logging.getLogger(__name__)
 CACHE_VERSION = 2
 CACHE_FORMAT = "arteq-fixed-set"
-EVAL_SPLITS = ("val", "test_id", "test_ood")
+EVAL_SPLITS = ("val", *TEST_SPLITS)
+#: Test sets drawn from the synthetic samplers whatever ``source`` is (the graded OOD scale).
+GRADED_SPLITS = ("test_ood_limb1", "test_ood_limb2", "test_ood_contact")
+#: Their size when ``test_size`` is null (AMASS: every frame of the real test sets).
+GRADED_DEFAULT_SIZE = 128
 
 
 class CorruptCacheError(RuntimeError):
@@ -207,15 +221,20 @@ class BodyScanDataModule(L.LightningDataModule):
             the procedural test body).
         amass_root: AMASS root folder (``source=amass``).
         amass: extra keyword arguments of :class:`arteq.data.amass.AmassPoses` for the ID splits
-            (``datasets``, ``test_motions``, ``val_motions``, ``eval_stride``, ``train_stride``);
-            ``amass_ood_datasets`` names the OOD folder candidates; ``amass_ood_stride`` its stride.
+            (see ``conf/data/amass.yaml`` and docs/data.md); ``amass_ood_datasets`` names the OOD
+            sub-dataset's folder candidates.
         use_data_betas: with AMASS, use the files' betas (only correct with an SMPL body; ``null`` = auto:
             true iff the body's name starts with ``smpl``); otherwise betas ~ N(0, beta_scale^2 I).
         num_points, noise_std, density_contrast, density_wavelength: cloud sampling.
-        augment: train rotation augmentation ``none | so3 | z``; ``eval_augment`` for val / test_id;
-            test_ood always gets ``so3``.
+        augment: train rotation augmentation ``none | so3 | z`` (``z``: about the vertical axis, which is
+            y in the body frame); ``eval_augment`` for val / test_id; every OOD set always gets ``so3``.
+        wide_poses: probability that a synthetic training pose is widened at the collars, shoulders,
+            elbows, wrists, neck and head (:data:`arteq.data.poses.WIDE_ID_RANGES_DEG`); val / test_id keep
+            the narrow everyday motions.
+        test_splits: the test sets to run, a subset of :data:`arteq.results.TEST_SPLITS` (default all).
         train_size: samples per epoch (``null`` with AMASS: number of training frames).
-        val_size, test_size: fixed set sizes (``null`` with AMASS: all frames of the split).
+        val_size, test_size: fixed set sizes (``null`` with AMASS: all frames of the split; the graded OOD
+            sets, synthetic and infinite, then have :data:`GRADED_DEFAULT_SIZE` clouds).
         batch_size, eval_batch_size, num_workers: loaders.
         seed: base seed of every random stream.
         cache: cache the fixed sets on disk; ``cache_root`` overrides the folder.
@@ -234,7 +253,6 @@ class BodyScanDataModule(L.LightningDataModule):
         amass_root: str | None = None,
         amass: Mapping[str, Any] | None = None,
         amass_ood_datasets: list[str] | tuple[str, ...] = ("MPI_Limits", "PosePrior"),
-        amass_ood_stride: int = 5,
         use_data_betas: bool | None = None,
         num_points: int = 5000,
         noise_std: float = 0.001,
@@ -243,6 +261,8 @@ class BodyScanDataModule(L.LightningDataModule):
         beta_scale: float = 1.0,
         augment: str = "none",
         eval_augment: str = "none",
+        wide_poses: float = 0.0,
+        test_splits: list[str] | tuple[str, ...] | None = None,
         train_size: int | None = 2000,
         val_size: int | None = 64,
         test_size: int | None = 256,
@@ -267,6 +287,16 @@ class BodyScanDataModule(L.LightningDataModule):
             raise ValueError(f"data.num_points must be >= 1, got {num_points}")
         if not 0 <= noise_std < 0.05:
             raise ValueError(f"data.noise_std is in metres and must be in [0, 0.05), got {noise_std}")
+        test_splits = tuple(TEST_SPLITS if test_splits is None else _plain(test_splits))
+        unknown = [t for t in test_splits if t not in TEST_SPLITS]
+        if unknown or not test_splits:
+            raise ValueError(
+                f"data.test_splits must be a non-empty subset of {list(TEST_SPLITS)}, got {test_splits}"
+            )
+        self.test_splits = tuple(t for t in TEST_SPLITS if t in test_splits)
+        if not 0.0 <= float(wide_poses) <= 1.0:
+            raise ValueError(f"data.wide_poses is a probability in [0, 1], got {wide_poses}")
+        self.wide_poses = float(wide_poses)
         self.fps_points = resolve_fps_points(fps_points, net, int(num_points))
         if self.fps_points > num_points:
             raise ValueError(f"data.fps_points={self.fps_points} is more than data.num_points={num_points}")
@@ -275,7 +305,6 @@ class BodyScanDataModule(L.LightningDataModule):
         self.amass_root = amass_root
         self.amass_kwargs = dict(_plain(amass) or {})
         self.amass_ood_datasets = list(amass_ood_datasets)
-        self.amass_ood_stride = amass_ood_stride
         self.use_data_betas = use_data_betas
         self.sampling = {
             "num_points": int(num_points),
@@ -285,7 +314,7 @@ class BodyScanDataModule(L.LightningDataModule):
             "beta_scale": float(beta_scale),
         }
         self.augment, self.eval_augment = augment, eval_augment
-        self.sizes = {"train": train_size, "val": val_size, "test_id": test_size, "test_ood": test_size}
+        self.sizes = {"train": train_size, "val": val_size} | {t: test_size for t in TEST_SPLITS}
         self.batch_size = batch_size
         self.eval_batch_size = eval_batch_size or batch_size
         self.num_workers = num_workers
@@ -309,8 +338,14 @@ class BodyScanDataModule(L.LightningDataModule):
         return self._body
 
     def _sources(self, split: str) -> PoseSource:
+        if split == "test_ood_limb1" or split == "test_ood_limb2":
+            return LimbOODPoses(int(split[-1]))
+        if split == "test_ood_contact":
+            return ContactRejectedPoses(self.body)
         if self.source == "synthetic":
-            return SyntheticOODPoses() if split == "test_ood" else SyntheticIDPoses()
+            if split == "test_ood":
+                return SyntheticOODPoses()
+            return SyntheticIDPoses(wide_prob=self.wide_poses if split == "train" else 0.0)
         from arteq.data.amass import amass_source
 
         # data.amass options, the OOD sub-dataset; betas from the files only where they fit the body
@@ -327,11 +362,15 @@ class BodyScanDataModule(L.LightningDataModule):
         """The on-the-fly dataset of a split (for the fixed splits: the generator of the cached set)."""
         src = self._sources(split)
         size = self.sizes[split]
+        if size is None and split in GRADED_SPLITS:
+            size = GRADED_DEFAULT_SIZE
         if size is None:
             if src.num_poses is None:
                 raise ValueError(f"data size of split {split!r} must be set for an infinite pose source")
             size = src.num_poses
-        augment = {"train": self.augment, "test_ood": "so3"}.get(split, self.eval_augment)
+        augment = (
+            self.augment if split == "train" else "so3" if split.startswith("test_ood") else self.eval_augment
+        )
         return BodyScanDataset(
             src, self.body, split, int(size), seed=self.seed, augment=augment, **self.sampling
         )
@@ -410,8 +449,8 @@ class BodyScanDataModule(L.LightningDataModule):
         return {
             "fit": ("val",),
             "validate": ("val",),
-            "test": ("test_id", "test_ood"),
-            "predict": ("test_id", "test_ood"),
+            "test": self.test_splits,
+            "predict": self.test_splits,
         }.get(stage or "", EVAL_SPLITS)
 
     def prepare_data(self) -> None:
@@ -428,7 +467,7 @@ class BodyScanDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         want = ("train", "val") if stage == "fit" else self._fixed_splits_for(stage)
         if stage is None:
-            want = ("train", *EVAL_SPLITS)
+            want = ("train", "val", *self.test_splits)
         for split in want:
             if split in self.datasets:
                 continue
@@ -488,8 +527,8 @@ class BodyScanDataModule(L.LightningDataModule):
         return self._eval_loader("val")
 
     def test_dataloader(self) -> list[DataLoader]:
-        """``[test_id, test_ood]`` (the order of ``arteq.results.TEST_SPLITS``)."""
-        return [self._eval_loader(s) for s in ("test_id", "test_ood")]
+        """One loader per test set of ``test_splits`` (in the order of ``arteq.results.TEST_SPLITS``)."""
+        return [self._eval_loader(s) for s in self.test_splits]
 
     # ------------------------------------------------------------------ resume
     def state_dict(self) -> dict[str, Any]:

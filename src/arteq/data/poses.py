@@ -235,12 +235,30 @@ def _swap_sides(angles: torch.Tensor) -> torch.Tensor:
     return out
 
 
+#: Extra range of the widened everyday poses (``SyntheticIDPoses(wide_prob=...)``, training only), left side
+#: and central joints, intrinsic XYZ Euler degrees ``(x, y, z)``: a widened draw adds ``U(-r, r)`` per axis
+#: (each side on its own), clipped to :data:`JOINT_LIMITS_DEG`. Where the narrow motions barely move and
+#: OOD accuracy collapsed (collars, shoulders, elbows, wrists, neck, head; docs/data.md).
+WIDE_ID_RANGES_DEG: dict[str, tuple[float, float, float]] = {
+    "left_collar": (10.0, 15.0, 15.0),
+    "left_shoulder": (40.0, 35.0, 35.0),
+    "left_elbow": (50.0, 40.0, 0.0),
+    "left_wrist": (25.0, 25.0, 50.0),
+    "neck": (25.0, 30.0, 20.0),
+    "head": (15.0, 20.0, 10.0),
+}
+
+
 class SyntheticIDPoses(PoseSource):
     """In-distribution poses: upright everyday motions with a continuous phase (DFAUST-like).
 
     A sample picks a family (uniformly), a phase ``U(0, 2pi)``, an amplitude ``U(0.7, 1.15)`` and a side,
     adds ``N(0, joint_noise_deg^2)`` to every non-root Euler angle, and orients the root upright with a
     yaw ``U(-max_yaw_deg, max_yaw_deg)`` and a tilt ``N(0, tilt_deg^2)`` about x and z. Infinite.
+
+    ``wide_prob``: the probability that a draw is widened by :data:`WIDE_ID_RANGES_DEG` (training poses
+    only: validation and test_id keep the narrow motions, so the ID test stays what it was). With 0 the
+    random stream and the fingerprint are those of the narrow source.
     """
 
     def __init__(
@@ -249,18 +267,22 @@ class SyntheticIDPoses(PoseSource):
         joint_noise_deg: float = 3.0,
         max_yaw_deg: float = 30.0,
         tilt_deg: float = 3.0,
+        wide_prob: float = 0.0,
     ) -> None:
         self.families = list(families) if families else list(ID_FAMILIES)
         unknown = [f for f in self.families if f not in ID_FAMILIES]
         if unknown:
             raise ValueError(f"unknown ID motion families {unknown}; known: {sorted(ID_FAMILIES)}")
+        if not 0.0 <= float(wide_prob) <= 1.0:
+            raise ValueError(f"SyntheticIDPoses: wide_prob must be in [0, 1], got {wide_prob}")
         self.joint_noise_deg = joint_noise_deg
         self.max_yaw_deg = max_yaw_deg
         self.tilt_deg = tilt_deg
+        self.wide_prob = float(wide_prob)
         self.num_poses = None
 
     def fingerprint(self) -> dict:
-        return {
+        fp = {
             "class": "SyntheticIDPoses",
             "families": self.families,
             "joint_noise_deg": self.joint_noise_deg,
@@ -268,6 +290,9 @@ class SyntheticIDPoses(PoseSource):
             "tilt_deg": self.tilt_deg,
             "version": 1,
         }
+        if self.wide_prob > 0:
+            fp |= {"wide_prob": self.wide_prob, "wide_ranges": WIDE_ID_RANGES_DEG}
+        return fp
 
     def euler(self, generator: torch.Generator) -> torch.Tensor:
         """One pose as Euler angles ``[22, 3]`` (degrees); the root entry holds the family's root bend."""
@@ -278,7 +303,10 @@ class SyntheticIDPoses(PoseSource):
         ang = _family_angles(fam, phase, amp, side)
         noise = torch.randn(NUM_JOINTS, 3, generator=generator, dtype=torch.float64) * self.joint_noise_deg
         noise[0] = 0
-        return ang + noise
+        ang = ang + noise
+        if self.wide_prob > 0 and torch.rand((), generator=generator) < self.wide_prob:
+            ang = _widen(ang, generator)
+        return ang
 
     def sample(self, index: int, generator: torch.Generator) -> dict:
         ang = self.euler(generator)
@@ -290,6 +318,21 @@ class SyntheticIDPoses(PoseSource):
         )
         rot[0] = upright @ rot[0]
         return {"pose": roma.rotmat_to_rotvec(rot), "betas": None, "transl": None}
+
+
+def _widen(ang: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+    """``ang [22, 3]`` plus ``U(-r, r)`` of :data:`WIDE_ID_RANGES_DEG` (both sides, independently), clipped
+    to the joint limits."""
+    r = torch.zeros(NUM_JOINTS, 3, dtype=torch.float64)
+    for name, v in WIDE_ID_RANGES_DEG.items():
+        r[J[name]] = torch.tensor(v, dtype=torch.float64)
+    r = mirror_left_to_right(r).abs()
+    u = torch.rand(NUM_JOINTS, 3, generator=generator, dtype=torch.float64) * 2 - 1
+    lo, hi = _limits_tensor()
+    out = ang + r * u
+    moved = r > 0
+    out[moved] = torch.minimum(torch.maximum(out, lo), hi)[moved]
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -359,7 +402,7 @@ class SyntheticOODPoses(PoseSource):
         self.template_prob = template_prob
         self.min_gap_deg = min_gap_deg
         self.id_bank_size = id_bank_size
-        self.id_source = id_source or SyntheticIDPoses()
+        self.id_source = SyntheticIDPoses() if id_source is None else id_source
         self.lo, self.hi = _limits_tensor()
         self.num_poses = None
         self._bank: torch.Tensor | None = None
@@ -426,6 +469,147 @@ class SyntheticOODPoses(PoseSource):
 
 
 # ----------------------------------------------------------------------------------------------
+# Graded out-of-distribution sets: how far generalisation reaches
+
+#: Limbs of the graded OOD sets (joints drawn from the OOD sampler together).
+LIMBS: dict[str, tuple[str, ...]] = {
+    "left_arm": ("left_collar", "left_shoulder", "left_elbow", "left_wrist"),
+    "right_arm": ("right_collar", "right_shoulder", "right_elbow", "right_wrist"),
+    "left_leg": ("left_hip", "left_knee", "left_ankle", "left_foot"),
+    "right_leg": ("right_hip", "right_knee", "right_ankle", "right_foot"),
+}
+
+
+class LimbOODPoses(PoseSource):
+    """An everyday pose with ``num_limbs`` of its four limbs (:data:`LIMBS`, chosen uniformly) taken from
+    the OOD sampler, and a Haar-uniform root orientation: the graded scale between the ID and the hard
+    OOD set (one limb out of distribution, then two). Infinite."""
+
+    def __init__(
+        self,
+        num_limbs: int = 1,
+        id_source: SyntheticIDPoses | None = None,
+        ood_source: SyntheticOODPoses | None = None,
+    ) -> None:
+        if not 1 <= int(num_limbs) <= len(LIMBS):
+            raise ValueError(f"LimbOODPoses: num_limbs must be in [1, {len(LIMBS)}], got {num_limbs}")
+        self.num_limbs = int(num_limbs)
+        self.id_source = SyntheticIDPoses() if id_source is None else id_source
+        self.ood_source = SyntheticOODPoses(id_source=self.id_source) if ood_source is None else ood_source
+        self.num_poses = None
+
+    def fingerprint(self) -> dict:
+        return {
+            "class": "LimbOODPoses",
+            "num_limbs": self.num_limbs,
+            "limbs": LIMBS,
+            "id": self.id_source.fingerprint(),
+            "ood": self.ood_source.fingerprint(),
+            "version": 1,
+        }
+
+    def euler(self, generator: torch.Generator) -> tuple[torch.Tensor, list[str]]:
+        """Euler angles ``[22, 3]`` (degrees: an ID draw, then an OOD draw for the chosen limbs) and the
+        names of the limbs taken from the OOD draw."""
+        ang = self.id_source.euler(generator)
+        ood = self.ood_source.euler(generator)
+        names = list(LIMBS)
+        chosen = [
+            names[i] for i in torch.randperm(len(names), generator=generator)[: self.num_limbs].tolist()
+        ]
+        for limb in chosen:
+            idx = [J[n] for n in LIMBS[limb]]
+            ang[idx] = ood[idx]
+        return ang, chosen
+
+    def sample(self, index: int, generator: torch.Generator) -> dict:
+        ang, _ = self.euler(generator)
+        rot = euler_to_rotmat(ang)
+        rot[0] = random_rotmat(1, generator)[0] @ rot[0]
+        return {"pose": roma.rotmat_to_rotvec(rot), "betas": None, "transl": None}
+
+
+def _tree_distance() -> torch.Tensor:
+    """Edges between parts of the 22-part tree ``[22, 22]`` (0 on the diagonal)."""
+    from arteq.body.skeleton import PARENTS
+
+    d = torch.full((NUM_JOINTS, NUM_JOINTS), NUM_JOINTS, dtype=torch.long)
+    d.fill_diagonal_(0)
+    for j, p in enumerate(PARENTS):
+        if p >= 0:
+            d[j, p] = d[p, j] = 1
+    for k in range(NUM_JOINTS):  # Floyd-Warshall on 22 nodes
+        d = torch.minimum(d, d[:, k : k + 1] + d[k : k + 1, :])
+    return d
+
+
+def contact_fraction(
+    vertices: torch.Tensor, part: torch.Tensor, clearance: float = 0.04, max_tree_distance: int = 2
+) -> float:
+    """Fraction of ``vertices [V, 3]`` within ``clearance`` metres of a vertex of a part more than
+    ``max_tree_distance`` edges away in the body tree (``part [V]``: each vertex's part): self-contact
+    and interpenetration of parts that are not neighbours (siblings such as the two thighs, and
+    grandparents, count as neighbours)."""
+    far = _tree_distance()[part][:, part] > max_tree_distance  # [V, V]
+    d = torch.cdist(vertices.double(), vertices.double())
+    return float(((d < clearance) & far).any(-1).double().mean())
+
+
+class ContactRejectedPoses(PoseSource):
+    """A pose source whose draws with self-contact are redrawn: PosePrior-like (extreme but physically
+    plausible) poses from :class:`SyntheticOODPoses`.
+
+    A draw is kept when, on ``body`` (mean shape) in that pose, at most ``max_fraction`` of a fixed
+    subset of ``vertices`` vertices lie within ``clearance`` metres of a non-neighbouring part
+    (:func:`contact_fraction`); everyday ID poses have about 1 % (docs/data.md). Infinite.
+    """
+
+    def __init__(
+        self,
+        body: torch.nn.Module,
+        base: PoseSource | None = None,
+        clearance: float = 0.04,
+        max_fraction: float = 0.01,
+        vertices: int = 1500,
+        max_tries: int = 200,
+    ) -> None:
+        self.base = SyntheticOODPoses() if base is None else base
+        self.body = body
+        self.clearance, self.max_fraction = float(clearance), float(max_fraction)
+        nv = int(body.lbs_weights.shape[0])
+        self.subset = torch.linspace(0, nv - 1, min(int(vertices), nv)).round().long()
+        self.part = body.lbs_weights.argmax(-1)[self.subset]
+        self.max_tries = int(max_tries)
+        self.num_poses = None
+
+    def fingerprint(self) -> dict:
+        return {
+            "class": "ContactRejectedPoses",
+            "base": self.base.fingerprint(),
+            "clearance": self.clearance,
+            "max_fraction": self.max_fraction,
+            "vertices": int(self.subset.numel()),
+            "version": 1,
+        }
+
+    def contact(self, pose: torch.Tensor) -> float:
+        """:func:`contact_fraction` of a pose ``[22, 3]`` (axis-angle) on the body's mean shape."""
+        with torch.no_grad():
+            verts = self.body(pose=pose[None].to(self.body.lbs_weights.dtype)).vertices[0]
+        return contact_fraction(verts[self.subset], self.part, self.clearance)
+
+    def sample(self, index: int, generator: torch.Generator) -> dict:
+        for _ in range(self.max_tries):
+            s = self.base.sample(index, generator)
+            if self.contact(s["pose"]) <= self.max_fraction:
+                return s
+        raise RuntimeError(
+            f"ContactRejectedPoses: {self.max_tries} draws in a row had more than {self.max_fraction:.1%} of "
+            f"the body within {self.clearance} m of a non-neighbouring part"
+        )
+
+
+# ----------------------------------------------------------------------------------------------
 # Distances between pose sets
 
 
@@ -457,6 +641,33 @@ def nearest_pose_distance(
     return torch.cat(out)
 
 
+def draw_poses(source: PoseSource, n: int, seed: int) -> torch.Tensor:
+    """``n`` local rotation matrices ``[n, 22, 3, 3]`` from ``source`` (one generator seeded ``seed``)."""
+    g = torch.Generator().manual_seed(seed)
+    return roma.rotvec_to_rotmat(torch.stack([source.sample(i, g)["pose"] for i in range(n)]).double())
+
+
+def pose_set_gaps(
+    reference: PoseSource,
+    queries: dict[str, PoseSource],
+    n_ref: int = 5000,
+    n_query: int = 500,
+    seed: int = 0,
+    include_root: bool = False,
+) -> dict[str, dict[str, float]]:
+    """Mean (and 5th percentile) nearest-reference distance in degrees of each query set: how far each
+    test set lies from the poses a model trains on. The reference draw uses seed ``seed``, query ``i``
+    (in order) seed ``seed + 1 + i``."""
+    ref = draw_poses(reference, n_ref, seed)
+    out = {}
+    for i, (name, src) in enumerate(queries.items()):
+        d = np.degrees(
+            nearest_pose_distance(draw_poses(src, n_query, seed + 1 + i), ref, include_root).numpy()
+        )
+        out[name] = {"mean_deg": float(d.mean()), "p5_deg": float(np.percentile(d, 5))}
+    return out
+
+
 def measure_id_ood_gap(
     n_ref: int = 5000, n_query: int = 500, seed: int = 0, include_root: bool = False
 ) -> dict[str, float]:
@@ -464,15 +675,9 @@ def measure_id_ood_gap(
 
     The ID reference set uses seed ``seed``; held-out ID and OOD queries use other seeds.
     """
-    id_src, ood_src = SyntheticIDPoses(), SyntheticOODPoses()
-
-    def draw(src: PoseSource, n: int, s: int) -> torch.Tensor:
-        g = torch.Generator().manual_seed(s)
-        return roma.rotvec_to_rotmat(torch.stack([src.sample(i, g)["pose"] for i in range(n)]))
-
-    ref = draw(id_src, n_ref, seed)
-    held = draw(id_src, n_query, seed + 1)
-    ood = draw(ood_src, n_query, seed + 2)
+    ref = draw_poses(SyntheticIDPoses(), n_ref, seed)
+    held = draw_poses(SyntheticIDPoses(), n_query, seed + 1)
+    ood = draw_poses(SyntheticOODPoses(), n_query, seed + 2)
     d_id = np.degrees(nearest_pose_distance(held, ref, include_root).numpy())
     d_ood = np.degrees(nearest_pose_distance(ood, ref, include_root).numpy())
     return {

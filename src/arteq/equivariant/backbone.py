@@ -26,6 +26,9 @@ class EquivariantBackbone(nn.Module):
     is a constant 1 per point and group element. The last layer's features are interpolated back to
     every input point from the 3 nearest centres (inverse squared distance). Defaults are the paper's
     setting: 5000 -> 2500 -> 2500 -> 1250 -> 1250 points, channels 32, 32, 64, 64.
+    ``normalize``: neighbour sums divided by the neighbour count (see :mod:`arteq.equivariant.layers`);
+    the constructor default ``False`` is what checkpoints made before the option hold, the project's
+    config (``conf/model/arteq.yaml``) sets ``True``.
 
     FPS: ``fps_idx`` gives the sample order of the first strided layer; it needs at least ``fps_size(N)``
     columns (extra columns are ignored: FPS is prefix-consistent). If omitted, it is computed here in
@@ -62,6 +65,7 @@ class EquivariantBackbone(nn.Module):
         checkpoint: bool = False,
         use_fast_path: bool = True,
         chunk_elems: int = DEFAULT_CHUNK_ELEMS,
+        normalize: bool = False,
     ) -> None:
         super().__init__()
         n = len(channels)
@@ -78,6 +82,7 @@ class EquivariantBackbone(nn.Module):
         self.channels = tuple(int(c) for c in channels)
         self.strides = tuple(int(s) for s in strides)
         self.kernel = kernel
+        self.normalize = bool(normalize)
         self.out_channels = self.channels[-1]
         c_in = 1
         blocks = []
@@ -94,6 +99,7 @@ class EquivariantBackbone(nn.Module):
                     use_fast_path=use_fast_path,
                     checkpoint=checkpoint,
                     chunk_elems=chunk_elems,
+                    normalize=normalize,
                 )
             )
             c_in = self.channels[i]

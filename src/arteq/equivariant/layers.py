@@ -8,9 +8,16 @@ output centres.
 
 - Spatial conv: for centre ``c``, element ``a`` and kernel point ``j``, neighbour ``n`` (ball query,
   masked) gets weight ``max(0, 1 - |(x_n - x_c) - R_a k_j|^2 / sigma)``; the weighted sum over
-  neighbours (no normalisation by the neighbour count, as in EPN/ArtEq, so the response also encodes
-  local density) of ``f_in[n, a]`` is mapped by a learned ``W_j [C_in, C_out]`` shared over group
-  elements and summed over ``j``: one contraction ``[.., A, J*C_in] @ [J*C_in, C_out]``.
+  neighbours of ``f_in[n, a]`` is mapped by a learned ``W_j [C_in, C_out]`` shared over group elements
+  and summed over ``j``: one contraction ``[.., A, J*C_in] @ [J*C_in, C_out]``.
+- Neighbour normalisation (``normalize``): with ``True`` the sum is divided by the number of neighbours
+  found in the ball (the mean over found neighbours), so the response is driven by local shape, not by
+  how many points the ball happens to hold; the authors' CUDA ball query gets the same in effect by
+  filling its ``k`` slots cyclically with the neighbours it found (their sum is ``k`` times this mean
+  when ``k`` is a multiple of the count, close to it otherwise). ``False`` (what networks built before
+  this option used, and the constructor default, so their checkpoints load unchanged) keeps the plain
+  masked sum, whose scale follows the Poisson count of points in the ball and the non-uniform density:
+  that is why those networks needed balls much larger than a body part (see docs/backbone.md).
 - Closed kernels (``ico13``/``ico33``): ``R_a k_j = k_{pi[a, j]}``, so the ``[.., A, J, K]`` weight
   tensor is a re-indexing of one ``[.., J, K]`` tensor (60x smaller); same result, see
   ``use_fast_path``.
@@ -26,6 +33,7 @@ instead of gathering features. ``fast_ops.reference_ops()`` restores the referen
 
 from __future__ import annotations
 
+import logging
 import math
 
 import torch
@@ -37,6 +45,8 @@ from arteq.geometry.pointops import ball_query, gather
 
 from .fast_ops import gather_rows, group_conv_fourier, permute_axis, use_reference
 from .group import GROUP_SIZE, group_conv_index, kernel_permutation, rotated_kernel_points
+
+log = logging.getLogger(__name__)
 
 #: Default budget (elements) of the largest per-chunk intermediate.
 DEFAULT_CHUNK_ELEMS = 1 << 24
@@ -145,6 +155,7 @@ class SeparableConvBlock(nn.Module):
         use_fast_path: bool = True,
         checkpoint: bool = False,
         chunk_elems: int = DEFAULT_CHUNK_ELEMS,
+        normalize: bool = False,
     ) -> None:
         super().__init__()
         if c_in < 1 or c_out < 1:
@@ -159,6 +170,7 @@ class SeparableConvBlock(nn.Module):
         if not self.sigma > 0:
             raise ValueError(f"SeparableConvBlock: sigma must be > 0, got {self.sigma}")
         self.kernel = kernel
+        self.normalize = bool(normalize)
         self.checkpoint = checkpoint
         self.chunk_elems = int(chunk_elems)
         kr = kernel_radius_ratio * self.radius
@@ -178,14 +190,35 @@ class SeparableConvBlock(nn.Module):
         for p, fan in ((self.spatial_weight, j * c_in), (self.group_weight, h * c_out)):
             nn.init.uniform_(p, -1.0 / math.sqrt(fan), 1.0 / math.sqrt(fan))
 
+    def _load_from_state_dict(self, state_dict, prefix, local_metadata, strict, missing, unexpected, errors):
+        # Kernel points are persistent buffers (older checkpoints hold them), but they follow from this
+        # block's kernel set and radius: weights saved by a network with other radii would otherwise bring
+        # their kernel points along while sigma follows this block's radius. Keep this block's own.
+        for name in ("rot_kernels", "kernels"):
+            key = prefix + name
+            if key in state_dict:
+                saved, own = state_dict[key], getattr(self, name)
+                if saved.shape != own.shape or not torch.allclose(saved.to(own.dtype), own, atol=1e-6):
+                    log.warning(
+                        "%s: the loaded kernel points (norm %.4f) belong to another ball radius; "
+                        "keeping this block's own (radius %.4g m, norm %.4f)",
+                        key, float(saved.norm()), self.radius, float(own.norm()),
+                    )  # fmt: skip
+                state_dict[key] = own.detach().clone()
+        super()._load_from_state_dict(state_dict, prefix, local_metadata, strict, missing, unexpected, errors)
+
     def extra_repr(self) -> str:
         return (
             f"c_in={self.c_in}, c_out={self.c_out}, radius={self.radius}, k={self.n_neighbours}, "
-            f"sigma={self.sigma:g}, kernel={self.kernel} (J={self.n_kernel}), fast={self.fast}"
+            f"sigma={self.sigma:g}, kernel={self.kernel} (J={self.n_kernel}), fast={self.fast}, "
+            f"normalize={self.normalize}"
         )
 
     def _spatial_chunk(self, xyz, feats, new_xyz, idx, mask):
         rel = gather(xyz, idx) - new_xyz[:, :, None, :]  # [B, m, K, 3]
+        if self.normalize:  # mean over the neighbours found: the mask rescaled by 1 / count (>= 1)
+            mask = mask.to(rel.dtype)
+            mask = mask / mask.sum(-1, keepdim=True).clamp_min(1.0)
         if feats is None:  # constant input 1: the neighbour sum of features is the sum of kernel weights
             if self.fast:
                 s = kernel_weight_sums(rel, mask, self.kernels.to(rel.dtype), self.sigma, self.kernel_perm)

@@ -77,14 +77,26 @@ def newest_last_checkpoints(root: str | Path) -> list[Path]:
     return sorted(paths, key=lambda p: p.stat().st_mtime, reverse=True)
 
 
-def load_module(run_or_ckpt: str | Path, which: str = "best", map_location: str = "cpu"):
-    """The trained :class:`arteq.training.ArtEqModule` of a run folder (its ``which`` checkpoint) or of
-    a checkpoint file, in eval mode; loaded with ``weights_only=True`` (the body is rebuilt from its
-    config, never read from the checkpoint)."""
+def read_checkpoint(path: str | Path, mmap: bool = False) -> dict[str, Any]:
+    """A checkpoint file's dict on the CPU, read with ``torch.load(weights_only=True)`` (tensors and plain
+    Python only: no pickled code runs); ``mmap`` maps the tensors instead of reading them (metadata only)."""
+    import torch
+
+    return torch.load(str(path), map_location="cpu", weights_only=True, mmap=mmap)
+
+
+def load_module(run_or_ckpt: str | Path | None = None, which: str = "best", map_location: str = "cpu"):
+    """The trained :class:`arteq.training.ArtEqModule` of a run folder (its ``which`` checkpoint), of a
+    checkpoint file, or of a shipped model by name (``anny22``; None: the default one, see
+    :mod:`arteq.pretrained`), in eval mode. Loaded with ``weights_only=True``; the body is rebuilt from
+    its config, never read from the checkpoint. The one loader of trained modules."""
+    from arteq.pretrained import resolve_checkpoint
     from arteq.training.module import ArtEqModule
 
-    path = Path(run_or_ckpt)
-    ckpt = path if path.is_file() else find_checkpoint(path, which)
+    if run_or_ckpt is not None and Path(run_or_ckpt).is_dir():
+        ckpt = find_checkpoint(run_or_ckpt, which)
+    else:
+        ckpt = resolve_checkpoint(run_or_ckpt)
     module = ArtEqModule.load_from_checkpoint(str(ckpt), map_location=map_location, weights_only=True)
     return module.eval()
 
@@ -185,7 +197,9 @@ class Run:
 
     @property
     def parent_conditioning(self) -> bool:
-        return bool(config_get(self.config, "model.net.parent_conditioning", True))
+        from arteq.models.heads import parent_mode
+
+        return parent_mode(config_get(self.config, "model.net.parent_conditioning", "invariant")) != "none"
 
     @property
     def base_name(self) -> str:

@@ -20,8 +20,10 @@ class ArtEqNet(nn.Module):
     Args:
         backbone: keyword arguments of :class:`arteq.equivariant.EquivariantBackbone`.
         num_betas: shape coefficients predicted.
-        parent_conditioning: concatenate each part's feature with its parent's in the pose head
-            (the paper's default; ``False`` is the "nc" ablation).
+        parent_conditioning: how the pose head sees each part's parent: ``"invariant"`` (the parent's
+            group-mean feature; the project's config), ``"aligned"`` / ``True`` (the parent's feature at the
+            same group element, the paper's form and what checkpoints from before the modes hold) or
+            ``"none"`` / ``False`` (the "nc" ablation); see :func:`arteq.models.heads.parent_mode`.
         segmenter, pose_head, shape_head: keyword arguments of the heads.
 
     All arguments are plain values so that the configuration round-trips through checkpoints.
@@ -34,7 +36,7 @@ class ArtEqNet(nn.Module):
         self,
         backbone: dict[str, Any] | None = None,
         num_betas: int = 10,
-        parent_conditioning: bool = True,
+        parent_conditioning: bool | str = True,
         segmenter: dict[str, Any] | None = None,
         pose_head: dict[str, Any] | None = None,
         shape_head: dict[str, Any] | None = None,

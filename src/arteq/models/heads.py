@@ -80,11 +80,32 @@ class GroupSelfAttention(nn.Module):
         return x + y if self.residual else y
 
 
+#: How the pose head sees a part's parent (``model.net.parent_conditioning``).
+PARENT_MODES = ("invariant", "aligned", "none")
+
+
+def parent_mode(value: bool | str | None) -> str:
+    """The parent-conditioning mode of a config value: ``"invariant"`` (the parent's group-mean feature
+    appended to each of the child's 60 tokens: unchanged when the child turns relative to its parent),
+    ``"aligned"`` (the parent's token at the same group element appended: what ``true`` meant before the
+    modes existed, equivariant only to rotations shared by parent and child) or ``"none"`` (``false``,
+    the paper's "nc" ablation)."""
+    if value is True:
+        return "aligned"
+    if value is False or value is None:
+        return "none"
+    if isinstance(value, str) and value.lower() in PARENT_MODES:
+        return value.lower()
+    modes = ", ".join(PARENT_MODES)
+    raise ValueError(f"model.net.parent_conditioning must be one of {modes} (or true / false), got {value!r}")
+
+
 class PoseHead(nn.Module):
     """Per-part global rotation as the weighted chordal L2 mean of the group's rotations.
 
-    For part k the tokens are its 60 group-element features (concatenated with its parent's
-    features when ``parent_conditioning``); self-attention over those tokens and a per-token MLP give
+    For part k the tokens are its 60 group-element features, each concatenated with its parent's
+    (``parent_conditioning``, see :func:`parent_mode`: the parent's group-mean feature, or its feature
+    at the same group element, or nothing); self-attention over those tokens and a per-token MLP give
     one logit per group element; the logits are standardised over the 60 elements (zero mean, unit
     variance: statistics over the tokens, hence permutation-invariant) and scaled by a learned
     sharpness ``s`` (initialised to ``sharpness``); the weights ``p = softmax(s * z)`` are convex, and
@@ -115,13 +136,14 @@ class PoseHead(nn.Module):
         heads: int = 8,
         layers: int = 2,
         mlp_hidden: int = 128,
-        parent_conditioning: bool = True,
+        parent_conditioning: bool | str = True,
         sharpness: float = 3.0,
         gradient_eps: float = 1e-3,
         part_embedding: bool = True,
     ):
         super().__init__()
-        self.parent_conditioning = parent_conditioning
+        self.parent_mode = parent_mode(parent_conditioning)
+        self.parent_conditioning = self.parent_mode != "none"
         self.register_buffer("parents", torch.tensor([max(p, 0) for p in parents]), persistent=False)
         self.register_buffer("group_rotations", group_rotations.double().clone(), persistent=False)
         d_in = 2 * in_channels if parent_conditioning else in_channels
@@ -154,8 +176,11 @@ class PoseHead(nn.Module):
     def _forward(self, part_feats: torch.Tensor) -> dict[str, torch.Tensor]:
         b, k, a, _ = part_feats.shape
         x = part_feats
-        if self.parent_conditioning:
+        if self.parent_mode == "aligned":
             x = torch.cat([x, x[:, self.parents]], dim=-1)
+        elif self.parent_mode == "invariant":
+            inv = x[:, self.parents].mean(dim=2, keepdim=True).expand_as(x)
+            x = torch.cat([x, inv], dim=-1)
         x = self.embed(x)
         if self.part_embedding is not None:
             x = x + self.part_embedding[:, None, :]

@@ -15,7 +15,6 @@ from torch import nn
 
 from arteq.body.skeleton import NUM_JOINTS, local_to_global
 from arteq.models.placement import body_centroid_matrix, estimate_translation
-from arteq.results import TEST_SPLITS
 from arteq.training.build import build_datamodule
 from arteq.training.metrics import BodyFitMetrics
 
@@ -45,7 +44,7 @@ def evaluate_mean_pose(
     centroids = body_centroid_matrix(body, NUM_JOINTS)
     dm.setup("test")
     out: dict[str, dict[str, float]] = {}
-    for split, loader in zip(TEST_SPLITS, dm.test_dataloader()):
+    for split, loader in zip(dm.test_splits, dm.test_dataloader()):
         # this process's own evaluation (run on rank 0 only in a distributed run): no cross-rank sync
         metric = BodyFitMetrics(sync_on_compute=False)
         for batch in loader:

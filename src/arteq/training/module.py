@@ -6,10 +6,12 @@ from collections.abc import Mapping
 from typing import Any
 
 import lightning as L
-import numpy as np
 import torch
 
 from arteq.body.factory import create_body
+from arteq.config import to_plain
+from arteq.geometry.pointops import fps_from_centroid
+from arteq.io.runs import read_checkpoint
 from arteq.models.placement import body_centroid_matrix, estimate_translation
 from arteq.models.precision import full_precision, upcast
 from arteq.models.registry import build_net
@@ -17,22 +19,6 @@ from arteq.results import TEST_SPLITS, metric_values
 from arteq.training.losses import DEFAULT_WEIGHTS, arteq_losses
 from arteq.training.metrics import BodyFitMetrics
 from arteq.training.optim import DEFAULT_OPTIMIZER, DEFAULT_SCHEDULER, build_optimizer, build_scheduler
-
-
-def marker_vertices(template: np.ndarray, count: int) -> np.ndarray:
-    """``count`` vertices spread over the template by farthest point sampling (deterministic).
-
-    They stand in for the mocap-marker vertices the paper weights twice in the vertex loss: SMPL's
-    marker indices do not exist on other topologies, evenly spread vertices do on any.
-    """
-    start = int(np.argmin(np.linalg.norm(template - template.mean(0), axis=1)))
-    chosen = [start]
-    dist = np.linalg.norm(template - template[start], axis=1)
-    for _ in range(count - 1):
-        nxt = int(np.argmax(dist))
-        chosen.append(nxt)
-        dist = np.minimum(dist, np.linalg.norm(template - template[nxt], axis=1))
-    return np.asarray(chosen)
 
 
 def batch_fps_idx(batch: Mapping[str, torch.Tensor]) -> torch.Tensor | None:
@@ -43,18 +29,6 @@ def batch_fps_idx(batch: Mapping[str, torch.Tensor]) -> torch.Tensor | None:
     if fps_idx is None or batch["points"].dtype != torch.float32:
         return None
     return fps_idx
-
-
-def _plain(x: Any) -> Any:
-    """Convert OmegaConf containers to plain Python (checkpoints must load with weights_only=True)."""
-    try:
-        from omegaconf import DictConfig, ListConfig, OmegaConf
-
-        if isinstance(x, DictConfig | ListConfig):
-            return OmegaConf.to_container(x, resolve=True)
-    except ImportError:  # pragma: no cover - omegaconf is a dependency
-        pass
-    return x
 
 
 class ArtEqModule(L.LightningModule):
@@ -96,8 +70,8 @@ class ArtEqModule(L.LightningModule):
         body: torch.nn.Module | None = None,
     ):
         super().__init__()
-        net = dict(_plain(net) or {})
-        body_model = {k: v for k, v in dict(_plain(body_model) or {}).items() if k != "_target_"}
+        net = dict(to_plain(net) or {})
+        body_model = {k: v for k, v in dict(to_plain(body_model) or {}).items() if k != "_target_"}
         if stage not in (1, 2):
             raise ValueError(f"stage must be 1 or 2, got {stage}")
         self.save_hyperparameters(
@@ -105,12 +79,12 @@ class ArtEqModule(L.LightningModule):
                 "net": net,
                 "body_model": body_model,
                 "stage": stage,
-                "loss_weights": dict(_plain(loss_weights) or DEFAULT_WEIGHTS),
-                "optimizer": dict(_plain(optimizer) or DEFAULT_OPTIMIZER),
-                "scheduler": dict(_plain(scheduler) or DEFAULT_SCHEDULER),
+                "loss_weights": dict(to_plain(loss_weights) or DEFAULT_WEIGHTS),
+                "optimizer": dict(to_plain(optimizer) or DEFAULT_OPTIMIZER),
+                "scheduler": dict(to_plain(scheduler) or DEFAULT_SCHEDULER),
                 "markers": markers,
                 "marker_weight": marker_weight,
-                "data": dict(_plain(data) or {}),
+                "data": dict(to_plain(data) or {}),
             }
         )
         self.body = create_body(body if body is not None else body_model)
@@ -126,7 +100,9 @@ class ArtEqModule(L.LightningModule):
         template = self.body.v_template.detach().double()
         vw = torch.ones(template.shape[0])
         if markers > 0:
-            vw[torch.from_numpy(marker_vertices(template.numpy(), markers))] = marker_weight
+            # stand-ins for the mocap-marker vertices the paper weights twice in the vertex loss (SMPL's
+            # marker indices do not exist on other topologies): vertices spread by farthest point sampling
+            vw[fps_from_centroid(template[None].cpu(), markers)[0]] = marker_weight
         self.register_buffer("vertex_weights", vw, persistent=False)
 
         self.val_metrics = BodyFitMetrics()
@@ -204,18 +180,26 @@ class ArtEqModule(L.LightningModule):
     def on_validation_epoch_end(self):
         self._log_metrics("val", self.val_metrics, prog_bar=True)
 
+    def _test_split_names(self) -> tuple[str, ...]:
+        """Names of the test loaders being run, in order: the datamodule's ``test_splits`` (else
+        :data:`arteq.results.TEST_SPLITS`, cut to the number of loaders)."""
+        loaders = self.trainer.test_dataloaders if self._trainer is not None else None
+        n_run = len(loaders) if isinstance(loaders, list | tuple) else 1
+        dm = getattr(self._trainer, "datamodule", None) if self._trainer is not None else None
+        names = tuple(getattr(dm, "test_splits", TEST_SPLITS))
+        return names[:n_run] if len(names) >= n_run else TEST_SPLITS[:n_run]
+
     def test_step(self, batch, batch_idx, dataloader_idx: int = 0):
         pred, gt, _ = self._step(batch, use_gt_parts=False)
-        self._update(self.test_metrics[dataloader_idx], pred, gt)
+        split = self._test_split_names()[dataloader_idx]
+        self._update(self.test_metrics[TEST_SPLITS.index(split)], pred, gt)
 
     def on_test_epoch_end(self):
         # Every rank computes every split that was run (even one whose shard of the set was empty):
         # compute() gathers the metric states of all ranks, so all of them must take part.
-        loaders = self.trainer.test_dataloaders if self._trainer is not None else None
-        n_run = len(loaders) if isinstance(loaders, list | tuple) else 1
         self.test_results = {}
-        for split, metric in list(zip(TEST_SPLITS, self.test_metrics))[:n_run]:
-            self.test_results[split] = self._log_metrics(split, metric)
+        for split in self._test_split_names():
+            self.test_results[split] = self._log_metrics(split, self.test_metrics[TEST_SPLITS.index(split)])
 
     def _log_metrics(self, split: str, metric: BodyFitMetrics, prog_bar: bool = False) -> dict[str, Any]:
         """Log a split's metrics and return them as results (the logged float32 values)."""
@@ -250,7 +234,7 @@ class ArtEqModule(L.LightningModule):
     # ------------------------------------------------------------------ stage 2 initialisation
     def load_net_weights(self, ckpt_path: str) -> None:
         """Initialise the network from another checkpoint (stage 1 -> stage 2); optimizer starts fresh."""
-        state = torch.load(ckpt_path, map_location="cpu", weights_only=True)
+        state = read_checkpoint(ckpt_path)
         if "state_dict" not in state:
             raise ValueError(f"{ckpt_path}: not a Lightning checkpoint (no 'state_dict')")
         net_state = {k[4:]: v for k, v in state["state_dict"].items() if k.startswith("net.")}

@@ -20,16 +20,15 @@ from pathlib import Path
 from typing import Any
 
 import lightning as L
-import torch
 from omegaconf import DictConfig, OmegaConf
 
-from arteq.io.runs import checkpoint_dir, newest_last_checkpoints
+from arteq.io.runs import checkpoint_dir, newest_last_checkpoints, read_checkpoint
 
 log = logging.getLogger("arteq.train")
 
 #: Data settings a found stage-1 checkpoint must share with the stage-2 run (what the clouds look like).
 STAGE1_DATA_KEYS = ("source", "num_points", "augment", "noise_std", "density_contrast", "density_wavelength",
-                    "beta_scale", "amass_root")  # fmt: skip
+                    "beta_scale", "amass_root", "amass", "wide_poses")  # fmt: skip
 #: Environment variable through which rank 0 hands its run plan to the ranks Lightning launches.
 PLAN_ENV = "ARTEQ_RUN_PLAN"
 
@@ -41,7 +40,7 @@ def _data_signature(data: dict | None) -> dict:
 
 def _checkpoint_net_config(path: Path) -> dict | None:
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        ckpt = read_checkpoint(path)
     except Exception:  # unreadable or foreign file: not a candidate
         return None
     hp = ckpt.get("hyper_parameters", {})
@@ -76,7 +75,7 @@ def latest_checkpoint(folder: Path) -> Path | None:
     best: tuple[tuple[int, float], Path] | None = None
     for path in sorted(Path(folder).glob("*.ckpt")):
         try:
-            ckpt = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+            ckpt = read_checkpoint(path, mmap=True)
             key = (int(ckpt["global_step"]), path.stat().st_mtime)
         except Exception as e:  # truncated, foreign or vanished file
             log.warning("resume: skipping unreadable checkpoint %s (%s)", path, type(e).__name__)
