@@ -1,9 +1,21 @@
-"""OmegaConf resolvers used by ``conf/`` (registered when :mod:`arteq` is imported)."""
+"""OmegaConf resolvers used by ``conf/`` (registered when :mod:`arteq` is imported), and :func:`to_plain`."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
+
+
+def to_plain(x: Any) -> Any:
+    """An OmegaConf container as plain Python (dicts and lists, interpolations resolved); anything else as
+    it is. For code that takes a config or a plain mapping alike, and for what checkpoints store (they
+    load with ``torch.load(weights_only=True)``, which refuses OmegaConf objects)."""
+    from omegaconf import DictConfig, ListConfig, OmegaConf
+
+    if isinstance(x, DictConfig | ListConfig):
+        return OmegaConf.to_container(x, resolve=True)
+    return x
 
 
 def radii_for_points(radii: Sequence[float], num_points: int, reference_points: int = 5000) -> list[float]:

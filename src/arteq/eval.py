@@ -65,7 +65,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     except FileNotFoundError as err:
         raise FileNotFoundError(f"ckpt_path={cfg.ckpt_path}: {err}") from None
     validate_eval_config(cfg)
-    module = ArtEqModule.load_from_checkpoint(str(ckpt), map_location="cpu", weights_only=True)
+    module = runs.load_module(ckpt)
     # test data on the checkpoint's body (the one it was trained on; conf's body_model is not used): a
     # copy of the module's, which the trainer moves to its device
     # (data.fps_points: auto is resolved against the checkpoint's network)

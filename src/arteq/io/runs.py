@@ -197,9 +197,7 @@ class Run:
 
     @property
     def parent_conditioning(self) -> bool:
-        from arteq.models.heads import parent_mode
-
-        return parent_mode(config_get(self.config, "model.net.parent_conditioning", "invariant")) != "none"
+        return bool(config_get(self.config, "model.net.parent_conditioning", True))
 
     @property
     def base_name(self) -> str:

@@ -53,7 +53,9 @@ def export_weights(
     if isinstance(ckpt_path, dict):
         state = ckpt_path
     else:
-        state = torch.load(str(ckpt_path), map_location="cpu", weights_only=True)
+        from arteq.io.runs import read_checkpoint
+
+        state = read_checkpoint(ckpt_path)
     if "state_dict" not in state or "hyper_parameters" not in state:
         raise ValueError(
             f"{ckpt_path}: not an arteq Lightning checkpoint (needs state_dict, hyper_parameters)"

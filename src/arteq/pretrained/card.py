@@ -19,19 +19,16 @@ from typing import Any
 
 import torch
 
+from arteq.io.runs import load_module, read_checkpoint
 from arteq.pretrained import PRETRAINED_DIR, export_weights, resolve_checkpoint
+from arteq.results import METRIC_KEYS, PAPER_SPLITS, format_value
 
-SUBSET_SPLITS = ("test_id", "test_ood")
-METRICS = ("part_acc", "v2v_cm", "mpjpe_cm", "rot_err_deg")
+__all__ = ["check", "export", "load_module", "main", "subset_metrics", "write_card"]
 
-
-def load_module(name_or_path: str | Path | None = None, map_location: str = "cpu"):
-    """The shipped (or given) model as an ``ArtEqModule`` in eval mode, loaded with ``weights_only=True``."""
-    from arteq.training.module import ArtEqModule
-
-    path = resolve_checkpoint(name_or_path)
-    module = ArtEqModule.load_from_checkpoint(str(path), map_location=map_location, weights_only=True)
-    return module.eval()
+#: The test sets of a card's subset metrics (the shipped cards store these two).
+SUBSET_SPLITS = PAPER_SPLITS
+#: The metrics a card shows and checks.
+METRICS = METRIC_KEYS
 
 
 def test_data_config(module, **overrides: Any) -> dict[str, Any]:
@@ -89,9 +86,28 @@ def _fmt_table(metrics: Mapping[str, Mapping[str, float]]) -> str:
     lines = ["| split | part acc % | V2V cm | MPJPE cm | rot err deg |", "|---|---:|---:|---:|---:|"]
     for split in SUBSET_SPLITS:
         m = metrics.get(split) or {}
-        cells = [f"{m[k]:.2f}" if k in m else "–" for k in METRICS]
+        cells = [format_value(m.get(k)) for k in METRICS]
         lines.append(f"| {split} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def licence_lines(body: str) -> list[str]:
+    """The card's licence section: the weights' licence and that of the body data they were trained on."""
+    from arteq.body.model import ANNY_BODIES
+
+    lines = ["- Weights: Apache-2.0, like the code (LICENSE at the top of the repository)."]
+    if body in ANNY_BODIES:
+        lines.append(
+            f"- Body data: trained on `{body}`, which is built on the user's machine from the `anny` package "
+            "(code Apache-2.0, NAVER Corporation) and its MakeHuman / MPFB2 assets (CC0 1.0); neither is "
+            "stored in this file. No SMPL data was used."
+        )
+    else:
+        lines.append(
+            f"- Body data: trained on `{body}`; its model file is under its own licence and is not stored in "
+            "this file (the body is rebuilt from the user's copy at load time)."
+        )
+    return lines
 
 
 def write_card(path: Path, info: Mapping[str, Any], hparams: Mapping[str, Any], params: int) -> None:
@@ -100,7 +116,7 @@ def write_card(path: Path, info: Mapping[str, Any], hparams: Mapping[str, Any], 
     lines = [
         f"# Pretrained ArtEq model `{info['name']}`",
         "",
-        f"Load: `arteq.pretrained.card.load_module('{info['name']}')`, evaluate: "
+        f"Load: `arteq.io.runs.load_module('{info['name']}')`, evaluate: "
         f"`python -m arteq.eval ckpt_path={info['name']} data.eval_augment=so3`, fit scans: "
         "`arteq-fit SCAN... --out DIR` (the default model).",
         "",
@@ -137,6 +153,7 @@ def write_card(path: Path, info: Mapping[str, Any], hparams: Mapping[str, Any], 
         f"Reproduce: `python -m arteq.pretrained.card check {info['name']}` (tolerance "
         f"{info['subset_tolerance']} absolute on each metric).",
     ]
+    lines += ["", "## Licence", "", *licence_lines(str(hparams["body_model"].get("name")))]
     if info.get("notes"):
         lines += ["", "## Notes", "", str(info["notes"])]
     path.write_text("\n".join(lines) + "\n")
@@ -155,7 +172,7 @@ def export(
     from arteq.io.runs import find_checkpoint
 
     ckpt = find_checkpoint(run, "best")
-    state = torch.load(str(ckpt), map_location="cpu", weights_only=True)  # once: a live run may replace it
+    state = read_checkpoint(ckpt)  # once: a live run may replace it
     out = PRETRAINED_DIR / f"{name}.ckpt"
     export_weights(state, out, {"name": name, "source_checkpoint": ckpt.name})
     module = load_module(out)
@@ -183,7 +200,7 @@ def export(
 
 def check(name: str) -> int:
     path = resolve_checkpoint(name)
-    info = torch.load(str(path), map_location="cpu", weights_only=True).get("arteq", {})
+    info = read_checkpoint(path).get("arteq", {})
     if "subset_metrics" not in info:
         print(f"{path}: no subset metrics stored", file=sys.stderr)
         return 2
