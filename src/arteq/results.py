@@ -17,14 +17,18 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-#: The evaluation splits, in the order the datamodule returns their loaders.
-TEST_SPLITS = ("test_id", "test_ood")
+#: The evaluation splits, in the order the datamodule returns their loaders: ID, the hard OOD set, then
+#: the graded OOD scale (one / two limbs out of distribution, OOD poses without self-contact).
+TEST_SPLITS = ("test_id", "test_ood", "test_ood_limb1", "test_ood_limb2", "test_ood_contact")
 #: The paper's two test sets: ID and the hard OOD set (the columns of its tables, the model cards' subsets).
 PAPER_SPLITS = ("test_id", "test_ood")
 #: Scalar metrics of :class:`arteq.training.metrics.BodyFitMetrics`, in table order.
 METRIC_KEYS = ("part_acc", "v2v_cm", "mpjpe_cm", "rot_err_deg")
 #: Column labels of the splits in tables.
-SPLIT_LABELS = {"test_id": "ID", "test_ood": "OOD"}
+SPLIT_LABELS = {
+    "test_id": "ID", "test_ood": "OOD", "test_ood_limb1": "OOD-1limb", "test_ood_limb2": "OOD-2limb",
+    "test_ood_contact": "OOD-nocontact",
+}  # fmt: skip
 #: Unit line under every metrics table.
 UNITS_NOTE = "part_acc in %, v2v/mpjpe in cm (MPJPE over the 22 body joints), rot_err in degrees."
 #: Row label of the mean-pose floor.
@@ -81,13 +85,15 @@ def architecture(cfg: Mapping[str, Any] | None) -> str:
 
 def base_method_name(cfg: Mapping[str, Any] | None) -> str:
     """Method without its augmentation suffix: ``ArtEq``, ``ArtEq nc`` (no parent conditioning),
-    ``PointNet++``..."""
+    ``ArtEq aligned`` (the parent's token at the same group element), ``PointNet++``..."""
+    from arteq.models.heads import parent_mode
     from arteq.models.registry import display_name
 
     arch = architecture(cfg)
     name = display_name(arch)
-    if arch == "arteq" and not bool(config_get(cfg, "model.net.parent_conditioning", True)):
-        name += " nc"
+    if arch == "arteq":
+        mode = parent_mode(config_get(cfg, "model.net.parent_conditioning", "invariant"))
+        name += {"none": " nc", "aligned": " aligned"}.get(mode, "")
     return name
 
 
@@ -106,13 +112,13 @@ def format_value(x: Any, digits: int = 2) -> str:
 
 
 def metrics_table(rows: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str:
-    """Markdown table: one row per method (``{name: results}``), ID and OOD columns per metric."""
-    head = "| method | " + " | ".join(
-        f"{SPLIT_LABELS[s]} {m}" for m in METRIC_KEYS for s in TEST_SPLITS
-    ) + " |"  # fmt: skip
-    lines = [head, "|---|" + "---:|" * (len(METRIC_KEYS) * len(TEST_SPLITS))]
+    """Markdown table: one row per method (``{name: results}``), a column per metric and split (the splits
+    of :data:`TEST_SPLITS` that some row has)."""
+    splits = [s for s in TEST_SPLITS if any(s in res for res in rows.values())] or list(TEST_SPLITS[:2])
+    head = "| method | " + " | ".join(f"{SPLIT_LABELS[s]} {m}" for m in METRIC_KEYS for s in splits) + " |"
+    lines = [head, "|---|" + "---:|" * (len(METRIC_KEYS) * len(splits))]
     for name, res in rows.items():
-        cells = [format_value(res.get(s, {}).get(m)) for m in METRIC_KEYS for s in TEST_SPLITS]
+        cells = [format_value(res.get(s, {}).get(m)) for m in METRIC_KEYS for s in splits]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -197,7 +197,9 @@ class Run:
 
     @property
     def parent_conditioning(self) -> bool:
-        return bool(config_get(self.config, "model.net.parent_conditioning", True))
+        from arteq.models.heads import parent_mode
+
+        return parent_mode(config_get(self.config, "model.net.parent_conditioning", "invariant")) != "none"
 
     @property
     def base_name(self) -> str:

@@ -180,18 +180,26 @@ class ArtEqModule(L.LightningModule):
     def on_validation_epoch_end(self):
         self._log_metrics("val", self.val_metrics, prog_bar=True)
 
+    def _test_split_names(self) -> tuple[str, ...]:
+        """Names of the test loaders being run, in order: the datamodule's ``test_splits`` (else
+        :data:`arteq.results.TEST_SPLITS`, cut to the number of loaders)."""
+        loaders = self.trainer.test_dataloaders if self._trainer is not None else None
+        n_run = len(loaders) if isinstance(loaders, list | tuple) else 1
+        dm = getattr(self._trainer, "datamodule", None) if self._trainer is not None else None
+        names = tuple(getattr(dm, "test_splits", TEST_SPLITS))
+        return names[:n_run] if len(names) >= n_run else TEST_SPLITS[:n_run]
+
     def test_step(self, batch, batch_idx, dataloader_idx: int = 0):
         pred, gt, _ = self._step(batch, use_gt_parts=False)
-        self._update(self.test_metrics[dataloader_idx], pred, gt)
+        split = self._test_split_names()[dataloader_idx]
+        self._update(self.test_metrics[TEST_SPLITS.index(split)], pred, gt)
 
     def on_test_epoch_end(self):
         # Every rank computes every split that was run (even one whose shard of the set was empty):
         # compute() gathers the metric states of all ranks, so all of them must take part.
-        loaders = self.trainer.test_dataloaders if self._trainer is not None else None
-        n_run = len(loaders) if isinstance(loaders, list | tuple) else 1
         self.test_results = {}
-        for split, metric in list(zip(TEST_SPLITS, self.test_metrics))[:n_run]:
-            self.test_results[split] = self._log_metrics(split, metric)
+        for split in self._test_split_names():
+            self.test_results[split] = self._log_metrics(split, self.test_metrics[TEST_SPLITS.index(split)])
 
     def _log_metrics(self, split: str, metric: BodyFitMetrics, prog_bar: bool = False) -> dict[str, Any]:
         """Log a split's metrics and return them as results (the logged float32 values)."""

@@ -28,7 +28,7 @@ log = logging.getLogger("arteq.train")
 
 #: Data settings a found stage-1 checkpoint must share with the stage-2 run (what the clouds look like).
 STAGE1_DATA_KEYS = ("source", "num_points", "augment", "noise_std", "density_contrast", "density_wavelength",
-                    "beta_scale", "amass_root")  # fmt: skip
+                    "beta_scale", "amass_root", "amass", "wide_poses")  # fmt: skip
 #: Environment variable through which rank 0 hands its run plan to the ranks Lightning launches.
 PLAN_ENV = "ARTEQ_RUN_PLAN"
 
