@@ -134,6 +134,19 @@ def test_augments_architectures_losses_and_splits_are_their_owners():
         validate_train_config(cfg)
 
 
+def test_parent_modes_are_the_pose_heads():
+    from arteq.models.heads import PARENT_MODES, parent_mode
+
+    for mode in (*PARENT_MODES, True, False):
+        validate_train_config(_cfg(f"model.net.parent_conditioning={str(mode).lower()}"))
+        assert parent_mode(mode) in PARENT_MODES
+    with pytest.raises(ConfigError) as info:
+        validate_train_config(_cfg("model.net.parent_conditioning=sideways"))
+    assert "parent_conditioning='sideways': allowed: invariant | aligned | none" in str(info.value)
+    with pytest.raises(ValueError, match="sideways"):  # what validate refuses, the pose head refuses too
+        parent_mode("sideways")
+
+
 def test_precisions_are_lightnings():
     from typing import get_args
 

@@ -19,6 +19,7 @@ from omegaconf.errors import MissingMandatoryValue
 
 from arteq.body.model import ANNY_BODIES, BODY_NAMES
 from arteq.data.dataset import AUGMENTS
+from arteq.models.heads import PARENT_MODES
 from arteq.models.registry import ARCHITECTURES, DEFAULT_ARCH
 from arteq.results import TEST_SPLITS
 from arteq.training import optim
@@ -228,6 +229,10 @@ def validate_model(cfg: DictConfig) -> None:
     arch = _one_of(cfg, "model.net.arch", ARCHS, default=DEFAULT_ARCH)
     n = _get(cfg, "data.num_points")
     if arch == "arteq":
+        pc = _get(cfg, "model.net.parent_conditioning")
+        if not (pc is None or isinstance(pc, bool) or (isinstance(pc, str) and pc.lower() in PARENT_MODES)):
+            allowed = f"{' | '.join(PARENT_MODES)} (or true = aligned, false = none)"
+            raise ConfigError("model.net.parent_conditioning", pc, allowed)
         bb = "model.net.backbone"
         channels = _get(cfg, f"{bb}.channels", [32, 32, 64, 64])
         strides = _get(cfg, f"{bb}.strides", [2, 1, 2, 1])
