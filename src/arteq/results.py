@@ -114,7 +114,7 @@ def format_value(x: Any, digits: int = 2) -> str:
 def metrics_table(rows: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str:
     """Markdown table: one row per method (``{name: results}``), a column per metric and split (the splits
     of :data:`TEST_SPLITS` that some row has)."""
-    splits = [s for s in TEST_SPLITS if any(s in res for res in rows.values())] or list(TEST_SPLITS[:2])
+    splits = [s for s in TEST_SPLITS if any(s in res for res in rows.values())] or list(PAPER_SPLITS)
     head = "| method | " + " | ".join(f"{SPLIT_LABELS[s]} {m}" for m in METRIC_KEYS for s in splits) + " |"
     lines = [head, "|---|" + "---:|" * (len(METRIC_KEYS) * len(splits))]
     for name, res in rows.items():
