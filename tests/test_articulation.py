@@ -163,3 +163,33 @@ def test_weights_of_another_radius_keep_this_networks_kernel_points(caplog):
     torch.testing.assert_close(new.blocks[0].kernels, own)
     torch.testing.assert_close(new.blocks[0].spatial_weight, old.blocks[0].spatial_weight)
     assert "belong to another ball radius" in caplog.text
+
+
+@pytest.mark.parametrize("spread", [0.0, 1e-5])
+def test_pose_head_gradients_stay_bounded_when_a_parts_tokens_are_alike(spread):
+    # An empty part pools to zeros (spread 0); local features of a part with one or two points per ball are
+    # nearly alike over the group (spread 1e-5). With the invariant parent feature nothing else tells the
+    # 60 tokens apart. The bounded standardisation (logit_eps) keeps the gradients small; the bare standard
+    # deviation amplified the rounding noise (max gradient 1.7e4 here at spread 1e-5; 3e2-4e5 per step at
+    # initialisation in training, so clipping scaled every other gradient to nothing and nothing learned).
+    grads = {}
+    for eps in (None, 1e-4):
+        torch.manual_seed(0)
+        head = PoseHead(8, group_rotations(torch.float64), PARENTS, dim=16, heads=4,
+                        parent_conditioning="invariant", logit_eps=eps)  # fmt: skip
+        feats = torch.randn(2, 22, 60, 8)
+        feats[:, JOINT_NAMES.index("left_foot")] = spread * torch.randn(2, 60, 8)
+        feats.requires_grad_(True)
+        out = head(feats)
+        if eps is not None and spread == 0:  # nothing to choose from: uniform weights
+            w = out["weights"][:, JOINT_NAMES.index("left_foot")]
+            torch.testing.assert_close(w, torch.full_like(w, 1 / 60))
+        out["mean"].square().sum().backward()
+        g = [p.grad for p in head.parameters() if p.grad is not None] + [feats.grad]
+        assert all(torch.isfinite(x).all() for x in g) or eps is None
+        grads[eps] = max(float(x.abs().nan_to_num(float("inf")).max()) for x in g)
+    assert grads[1e-4] < 1e3
+    if spread > 0:
+        assert grads[None] > 10 * grads[1e-4]
+    with pytest.raises(ValueError, match="logit_eps"):
+        PoseHead(8, group_rotations(torch.float64), PARENTS, logit_eps=0.0)

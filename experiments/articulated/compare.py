@@ -27,7 +27,9 @@ OLD_BACKBONE = [
 ]  # fmt: skip
 ARMS: dict[str, list[str]] = {
     # the configuration the shipped anny22 model has (radii scaled to 500 points, plain sums, aligned parent)
-    "old": [*OLD_BACKBONE, "model.net.parent_conditioning=aligned"],
+    "old": [*OLD_BACKBONE, "model.net.parent_conditioning=aligned", "model.net.pose_head.logit_eps=null"],
+    # the same with the bounded logit standardisation of the new pose head (isolates the backbone)
+    "old_eps": [*OLD_BACKBONE, "model.net.parent_conditioning=aligned"],
     # the new backbone (metric radii, neighbour means, 250 deep centres) with each parent conditioning
     "local_aligned": ["model.net.parent_conditioning=aligned"],
     "local_invariant": ["model.net.parent_conditioning=invariant"],

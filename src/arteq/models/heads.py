@@ -115,6 +115,16 @@ class PoseHead(nn.Module):
     tokens as a group rotation ``g`` does permutes ``p``, so ``M_k -> R_g M_k`` and the output
     rotation is left-multiplied by ``R_g``: equivariant.
 
+    ``logit_eps``: the standardisation divides by ``sqrt(var + logit_eps)``. When a part's 60 tokens are
+    (nearly) identical the logits' spread is (nearly) zero: a part with no points, whose pooled feature is
+    0, and, with the invariant parent conditioning or none, nothing else to tell its tokens apart; or local
+    features at 500 points whose balls hold one or two points. Dividing by the bare standard deviation then
+    amplifies rounding noise without bound; its gradient is NaN at exactly zero (that killed training runs)
+    and ~1e3-1e5 near it, so gradient clipping scaled every other gradient to nothing and the network did
+    not learn (measured: total gradient norm 3e2-4e5 per step at initialisation, loss flat for 300 steps).
+    ``None`` (the constructor default, what checkpoints made before the option hold) keeps the old
+    ``std + 1e-6``; the project's config sets ``1e-4``.
+
     Why not raw weights (the authors' code): the 60 group rotations sum to zero, so raw weights that
     start out nearly equal put ``M`` near zero, where the SVD derivative (``1 / (s_i + s_j)``)
     explodes (measured here with plain softmax weights at initialisation: singular values of ``M``
@@ -140,6 +150,7 @@ class PoseHead(nn.Module):
         sharpness: float = 3.0,
         gradient_eps: float = 1e-3,
         part_embedding: bool = True,
+        logit_eps: float | None = None,
     ):
         super().__init__()
         self.parent_mode = parent_mode(parent_conditioning)
@@ -162,6 +173,9 @@ class PoseHead(nn.Module):
         )  # fmt: skip
         self.log_sharpness = nn.Parameter(torch.tensor(float(sharpness)).log())
         self.gradient_eps = gradient_eps
+        if logit_eps is not None and not float(logit_eps) > 0:
+            raise ValueError(f"PoseHead: logit_eps must be > 0 or None, got {logit_eps}")
+        self.logit_eps = None if logit_eps is None else float(logit_eps)
 
     def forward(self, part_feats: torch.Tensor) -> dict[str, torch.Tensor]:
         """``part_feats [B, K, A, C]`` -> ``weights [B, K, A]``, ``mean [B, K, 3, 3]`` (before
@@ -188,7 +202,11 @@ class PoseHead(nn.Module):
         for layer in self.attn:
             x = layer(x)
         logits = self.mlp(x).reshape(b, k, a)
-        z = (logits - logits.mean(-1, keepdim=True)) / (logits.std(-1, keepdim=True) + 1e-6)
+        centred = logits - logits.mean(-1, keepdim=True)
+        if self.logit_eps is None:  # networks saved before logit_eps: the old form, kept for their weights
+            z = centred / (logits.std(-1, keepdim=True) + 1e-6)
+        else:
+            z = centred * torch.rsqrt(logits.var(-1, keepdim=True) + self.logit_eps)
         weights = torch.softmax(z * self.log_sharpness.exp(), dim=-1)
         mean = torch.einsum("bka,aij->bkij", weights, self.group_rotations.to(weights.dtype))
         rotmats = roma.special_procrustes(mean, gradient_eps=self.gradient_eps)
