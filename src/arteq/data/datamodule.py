@@ -43,6 +43,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, default_collate
 
 from arteq.body.factory import create_body
+from arteq.config import to_plain
 from arteq.data.dataset import (
     AUGMENTS,
     SAMPLE_KEYS,
@@ -176,7 +177,7 @@ def resolve_fps_points(fps_points: int | str | None, net: Mapping[str, Any] | No
     (at least what it needs; more is allowed, the extra columns are ignored)."""
     if fps_points is None or fps_points == 0:
         return 0
-    net = dict(_plain(net) or {})
+    net = dict(to_plain(net) or {})
     arteq = net.get("arch", "arteq") == "arteq"
     need = None
     if net and arteq:
@@ -198,17 +199,6 @@ def resolve_fps_points(fps_points: int | str | None, net: Mapping[str, Any] | No
             f"{num_points} points (use auto)"
         )
     return fps_points
-
-
-def _plain(x: Any) -> Any:
-    try:
-        from omegaconf import DictConfig, ListConfig, OmegaConf
-
-        if isinstance(x, DictConfig | ListConfig):
-            return OmegaConf.to_container(x, resolve=True)
-    except ImportError:
-        pass
-    return x
 
 
 class BodyScanDataModule(L.LightningDataModule):
@@ -287,7 +277,7 @@ class BodyScanDataModule(L.LightningDataModule):
             raise ValueError(f"data.num_points must be >= 1, got {num_points}")
         if not 0 <= noise_std < 0.05:
             raise ValueError(f"data.noise_std is in metres and must be in [0, 0.05), got {noise_std}")
-        test_splits = tuple(TEST_SPLITS if test_splits is None else _plain(test_splits))
+        test_splits = tuple(TEST_SPLITS if test_splits is None else to_plain(test_splits))
         unknown = [t for t in test_splits if t not in TEST_SPLITS]
         if unknown or not test_splits:
             raise ValueError(
@@ -301,9 +291,9 @@ class BodyScanDataModule(L.LightningDataModule):
         if self.fps_points > num_points:
             raise ValueError(f"data.fps_points={self.fps_points} is more than data.num_points={num_points}")
         self.source = source
-        self.body_model_cfg = _plain(body_model)
+        self.body_model_cfg = to_plain(body_model)
         self.amass_root = amass_root
-        self.amass_kwargs = dict(_plain(amass) or {})
+        self.amass_kwargs = dict(to_plain(amass) or {})
         self.amass_ood_datasets = list(amass_ood_datasets)
         self.use_data_betas = use_data_betas
         self.sampling = {

@@ -268,14 +268,13 @@ def main(argv: list[str] | None = None) -> None:
 
 def default_net_config(num_points: int = 500) -> dict:
     """The project's ArtEq network config (``conf/model/arteq.yaml``, resolved at ``num_points``)."""
-    from pathlib import Path
-
     from omegaconf import OmegaConf
 
     from arteq.config import register_resolvers
+    from arteq.paths import conf_dir
 
     register_resolvers()
-    root = Path(__file__).resolve().parents[3] / "conf"
+    root = conf_dir()
     cfg = OmegaConf.merge(
         {"data": {"num_points": num_points}, "body_model": {"num_betas": 10}},
         {"model": OmegaConf.load(root / "model" / "arteq.yaml")},
