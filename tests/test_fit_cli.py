@@ -200,6 +200,65 @@ def test_not_a_single_body(oracle, body, tmp_path, case):
     assert list((tmp_path / "out").glob(f"{case}.*")) == []
 
 
+def _upper_half(s: dict) -> np.ndarray:
+    """The scan's points above the pelvis height along the body's own up axis (a partial scan)."""
+    up = s["rotation"] @ np.array([0.0, 1.0, 0.0])
+    h = (s["points"] - s["vertices"].mean(0)) @ up
+    return s["points"][h > 0]
+
+
+def test_uncertain_fit_is_written_and_flagged(oracle, body, tmp_path):
+    """A partial scan (the upper half of a body): one body, but the scan covers only part of the fit.
+    Written with status ``uncertain`` and the reason in the npz, json and summary, not thrown away."""
+    s = synthetic_scan(body, "test_id", 4, 5000, offset=1.0)
+    path = write_cloud(tmp_path / "half.ply", _upper_half(s))
+    row, _ = run_oracle(oracle, tmp_path, s, path)
+    assert row["status"] == "uncertain", row
+    assert "low_coverage" in row["flags"].split() and "covers only" in row["uncertain_reason"], row
+    assert row["message"].startswith(f"{path}: uncertain fit, written, check it (")
+    out = tmp_path / "out"
+    assert {p.suffix for p in out.glob("half.*")} == {".obj", ".npz", ".json"}
+    z = np.load(out / "half.npz")
+    assert str(z["status"]) == "uncertain" and "covers only" in str(z["uncertain_reason"])
+    assert "low_coverage" in str(z["quality_flags"]).split() and z["quality_coverage"] < 0.9
+    j = json.loads((out / "half.json").read_text())
+    assert j["status"] == "uncertain" and j["uncertain_reason"] == row["uncertain_reason"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["fitted"] == 1 and summary["uncertain"] == 1 and summary["failed"] == 0
+    csv = (out / "summary.csv").read_text().splitlines()
+    assert "uncertain_reason" in csv[0].split(",") and ",uncertain," in csv[1]
+
+
+def test_strict_refuses_an_uncertain_fit(oracle, body, tmp_path, monkeypatch, capsys):
+    """``arteq-fit --strict``: the same partial scan is refused (status ``refused``), nothing written,
+    exit code 1; without ``--strict`` the command writes it and exits 0."""
+    import arteq.fit.api as api
+
+    s = synthetic_scan(body, "test_id", 4, 5000, offset=1.0)
+    path = write_cloud(tmp_path / "half.ply", _upper_half(s))
+    oracle.truth = s
+    made = []
+
+    def fitter(**kwargs):
+        made.append(kwargs)
+        oracle.strict = kwargs["strict"]
+        return oracle
+
+    monkeypatch.setattr(api, "Fitter", fitter)
+    try:
+        rc = cli_main([str(path), "--out", str(tmp_path / "strict"), "--strict", "--no-preview"])
+        assert rc == 1 and made[-1]["strict"] is True
+        row = json.loads((tmp_path / "strict" / "summary.json").read_text())["inputs"][0]
+        assert row["status"] == "refused" and "refused (--strict)" in row["message"], row
+        assert list((tmp_path / "strict").glob("half.*")) == []
+        assert "uncertain fit, refused (--strict)" in capsys.readouterr().err
+        rc = cli_main([str(path), "--out", str(tmp_path / "lenient"), "--no-preview"])
+        assert rc == 0 and made[-1]["strict"] is False
+        assert (tmp_path / "lenient" / "half.npz").exists()
+    finally:
+        oracle.strict = False
+
+
 def test_two_bodies_apart_are_refused_by_clutter_removal(oracle, body, tmp_path):
     """Two whole people 1.4 m apart: the second is not clutter; refused with the reason, or (--no-check)
     fitted to the larger one with a warning."""

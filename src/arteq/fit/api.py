@@ -23,12 +23,17 @@ import numpy as np
 import torch
 
 from arteq.fit.clean import CleanConfig, CleanResult, clean_scan
-from arteq.fit.quality import QualityThresholds, describe_flags, fit_quality
+from arteq.fit.quality import REFUSE_FLAGS, QualityThresholds, describe_flags, fit_quality, verdict
 from arteq.fit.refine import RefineConfig, body_tables, refine
 from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_points
 
-#: Status values of a :class:`FitResult`.
-STATUSES = ("ok", "not_single_body", "error", "skipped")
+#: Status values of a :class:`FitResult`: ``ok``; ``uncertain`` (a body, but the check doubts the fit:
+#: written and flagged, ``uncertain_reason`` says why); ``not_single_body`` (not one body: nothing
+#: written); ``refused`` (an uncertain fit refused by ``strict``: nothing written); ``error`` (bad input);
+#: ``skipped`` (outputs exist).
+STATUSES = ("ok", "uncertain", "not_single_body", "refused", "error", "skipped")
+#: Statuses whose outputs are written.
+WRITTEN_STATUSES = ("ok", "uncertain")
 
 
 @dataclass
@@ -44,7 +49,8 @@ class FitResult:
     vertex, ``point_distance [N]`` distance to it (scan units, inf for dropped NaN rows),
     ``point_clutter [N]`` what clutter removal did with each row (:data:`arteq.fit.clean.CODES`: 0 kept,
     1 plane, 2 outlier, 3 separate cluster; -1 NaN). ``clean``: the :class:`CleanResult` (or None).
-    ``quality``: :func:`arteq.fit.quality.fit_quality` values; ``timings`` in seconds.
+    ``quality``: :func:`arteq.fit.quality.fit_quality` values; ``uncertain_reason``: why the check
+    doubts the fit (status ``uncertain`` or ``refused``; empty otherwise); ``timings`` in seconds.
     """
 
     name: str
@@ -71,6 +77,7 @@ class FitResult:
     anny: dict | None = None  # arteq.fit.anny_params.AnnyExport.export: phenotype, pose, measurements
     anny_note: str = ""  # why there is no Anny export (anny not installed, not an Anny body, failed)
     quality: dict = field(default_factory=dict)
+    uncertain_reason: str = ""
     timings: dict = field(default_factory=dict)
     body_model: str = ""
     checkpoint: str = ""
@@ -80,6 +87,11 @@ class FitResult:
     @property
     def ok(self) -> bool:
         return self.status == "ok"
+
+    @property
+    def written(self) -> bool:
+        """Whether this fit's outputs are written (``ok`` or ``uncertain``)."""
+        return self.status in WRITTEN_STATUSES
 
     def arrays(self) -> dict[str, Any]:
         """The ``.npz`` content (see docs/fitting.md)."""
@@ -114,6 +126,8 @@ class FitResult:
             "scale_to_m": np.float64(self.scale_to_m),
             "refined": np.bool_(self.refined),
             "status": np.str_(self.status),
+            "uncertain_reason": np.str_(self.uncertain_reason),
+            "quality_flags": np.str_(" ".join(self.quality.get("flags", []))),
             **clutter,
             **npz_arrays(self.anny),
             **{k: np.asarray(v, dtype=np.float64) for k, v in q.items()},
@@ -129,6 +143,7 @@ class FitResult:
             "source": source,
             "status": self.status,
             "message": self.message,
+            "uncertain_reason": self.uncertain_reason,
             "units": self.units,
             "body_model": self.body_model,
             "checkpoint": self.checkpoint,
@@ -146,10 +161,12 @@ class FitResult:
             "name": self.name,
             "status": self.status,
             "message": self.message,
+            "uncertain_reason": self.uncertain_reason,
             "inlier_frac": q.get("inlier_frac"),
             "rmse_in_cm": q.get("rmse_in_cm"),
             "mean_dist_cm": q.get("mean_dist_cm"),
             "coverage": q.get("coverage"),
+            "label_agree": q.get("label_agree"),
             "parts_covered": q.get("parts_covered"),
             "max_abs_beta": q.get("max_abs_beta"),
             "extent_m": q.get("extent_m"),
@@ -211,7 +228,10 @@ class Fitter:
         anny: Anny's phenotype, pose and body measurements per fit (:mod:`arteq.fit.anny_params`):
             ``True`` (error without ``anny`` or for a body not in Anny's topology), ``False``, or ``None``
             (default: when ``anny`` is installed and the body is an Anny body).
-        check: turn failed quality checks into status ``not_single_body`` (else a warning only).
+        check: apply the quality check (:mod:`arteq.fit.quality`): a scan that is not one body gets
+            ``not_single_body`` (nothing written), a doubtful fit ``uncertain`` (written, flagged); off,
+            every fit is ``ok`` and a failed check is a warning only.
+        strict: refuse uncertain fits too (status ``refused``, nothing written).
         seed: resampling seed (each scan is resampled with it: results do not depend on batching).
     """
 
@@ -228,6 +248,7 @@ class Fitter:
         clean: bool = True,
         clean_config: CleanConfig | None = None,
         anny: bool | None = None,
+        strict: bool = False,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
         from arteq.training.module import ArtEqModule
@@ -255,6 +276,7 @@ class Fitter:
         self.refine_config = refine_config or RefineConfig()
         self.thresholds = thresholds or QualityThresholds()
         self.check = check
+        self.strict = strict
         self.seed = seed
         self.clean = clean
         self.clean_config = clean_config or CleanConfig()
@@ -393,17 +415,22 @@ class Fitter:
             d, vi = cKDTree(verts[i]).query(it.get("finite_centred", it["centred"]))
             fit_lab[finite] = self.vertex_parts[vi]
             dist[finite] = d / s
-            status, message = "ok", ""
+            status, message, reason = "ok", "", ""
             warnings = list(it["warnings"])
             if q["flags"]:
-                text = describe_flags(q)
-                if self.check:
+                if not self.check:
+                    warnings.append(f"quality check failed: {describe_flags(q)}")
+                elif verdict(q["flags"]) == "not_single_body":
                     status = "not_single_body"
-                    message = f"{it['name']}: not a single body ({text})"
+                    hard = [f for f in q["flags"] if f in REFUSE_FLAGS]
+                    message = f"{it['name']}: not a single body ({describe_flags(q, hard)})"
                 else:
-                    warnings.append(f"quality check failed: {text}")
-            if warnings and not message:
-                message = f"{it['name']}: " + "; ".join(warnings)
+                    reason = describe_flags(q)
+                    status = "refused" if self.strict else "uncertain"
+                    what = "refused (--strict)" if self.strict else "written, check it"
+                    message = f"{it['name']}: uncertain fit, {what} ({reason})"
+            if warnings:
+                message = (message + "; " if message else f"{it['name']}: ") + "; ".join(warnings)
             c = it["center"]
             results.append(
                 FitResult(
@@ -429,6 +456,7 @@ class Fitter:
                     clean=cleaned,
                     clutter_points=_removed_points(it, c, s),
                     quality=q,
+                    uncertain_reason=reason,
                     timings={
                         "clean": it.get("clean_seconds", 0.0),
                         "network": per_scan_net,
@@ -445,7 +473,7 @@ class Fitter:
             t = r.timings
             t["total"] = t["clean"] + t["network"] + t["refine"] + t["check"]
             r.anny_note = self.anny_note
-            if self.anny_export is not None and r.status == "ok":
+            if self.anny_export is not None and r.written:
                 rot = roma.rotvec_to_rotmat(torch.as_tensor(pose_aa[i], dtype=torch.float64)).numpy()
                 try:
                     r.anny = self.anny_export.export(betas[i], rot, verts[i] + items[i]["center"])
@@ -497,16 +525,19 @@ def fit_points(
     name: str = "points",
     fitter: Fitter | None = None,
     clean: bool = True,
+    strict: bool = False,
 ) -> FitResult:
     """Fit the body to one point cloud ``[N, 3]`` given in ``units`` (``m``, ``cm`` or ``mm``).
 
     Returns a :class:`FitResult` in the cloud's own frame and units; ``result.status`` is ``ok``,
-    ``not_single_body`` (the quality check failed; ``result.message`` says why) or ``error`` (bad
-    input: too few points, wrong units...). Pass ``fitter=`` to reuse a loaded model.
+    ``uncertain`` (a body, but the check doubts the fit: ``result.uncertain_reason`` says why),
+    ``not_single_body`` (not one body: a sphere, two people; ``result.message`` says why), ``refused``
+    (uncertain and ``strict``) or ``error`` (bad input: too few points, wrong units...). Pass
+    ``fitter=`` to reuse a loaded model.
     """
     if isinstance(points, torch.Tensor):
         points = points.detach().cpu().numpy()
     f = fitter or get_fitter(
-        ckpt=ckpt, device=device, refine=refine, points=num_points, check=check, clean=clean
+        ckpt=ckpt, device=device, refine=refine, points=num_points, check=check, clean=clean, strict=strict
     )
     return f.fit_points(points, units=units, name=name)

@@ -33,7 +33,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--preview", action=argparse.BooleanOptionalAction, default=True, help="write <name>.png")
     ap.add_argument("--overwrite", action="store_true", help="replace existing outputs (else skip them)")
     ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
-                    help="fail fits that do not look like one body (default: on)")  # fmt: skip
+                    help="refuse scans that are not one body, flag uncertain fits (default: on)")  # fmt: skip
+    ap.add_argument("--strict", action="store_true",
+                    help="refuse uncertain fits too (status refused, nothing written)")  # fmt: skip
     ap.add_argument("--clean", action=argparse.BooleanOptionalAction, default=True,
                     help="remove floors, walls, stray points, other objects first (default: on)")  # fmt: skip
     ap.add_argument("--anny", action=argparse.BooleanOptionalAction, default=None,
@@ -65,7 +67,8 @@ def main(argv: list[str] | None = None) -> int:
         cfg.iters = args.iters
     try:
         fitter = Fitter(ckpt=args.ckpt, device=args.device, refine=args.refine, points=args.points,
-                        refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny)  # fmt: skip
+                        refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny,
+                        strict=args.strict)  # fmt: skip
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"arteq-fit: {exc}", file=sys.stderr)
         return 2

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from arteq.fit.api import FitResult, Fitter
+from arteq.fit.api import WRITTEN_STATUSES, FitResult, Fitter
 from arteq.io.fits import (
     AtomicFiles,
     csv_bytes,
@@ -26,11 +26,14 @@ from arteq.io.fits import (
 )
 from arteq.io.scans import ScanError, expand_inputs, read_scan
 
+#: Statuses counted as failed (exit code 1): nothing was written for them.
+FAILED_STATUSES = ("error", "not_single_body", "refused")
+
 SUMMARY_COLUMNS = [
-    "input", "name", "status", "message", "inlier_frac", "rmse_in_cm", "mean_dist_cm", "coverage",
-    "parts_covered", "max_abs_beta", "extent_m", "flags", "removed_plane", "removed_outlier",
-    "removed_cluster", "stature_cm", "waist_cm", "mass_kg", "bmi", "age_years", "anny_rebuild_mm", "seconds",
-    "anny_seconds",
+    "input", "name", "status", "message", "uncertain_reason", "inlier_frac", "rmse_in_cm", "mean_dist_cm",
+    "coverage", "label_agree", "parts_covered", "max_abs_beta", "extent_m", "flags", "removed_plane",
+    "removed_outlier", "removed_cluster", "stature_cm", "waist_cm", "mass_kg", "bmi", "age_years",
+    "anny_rebuild_mm", "seconds", "anny_seconds",
 ]  # fmt: skip
 
 
@@ -47,20 +50,24 @@ class RunSummary:
 
     @property
     def failed(self) -> int:
-        return sum(r["status"] in ("error", "not_single_body") for r in self.rows)
+        return sum(r["status"] in FAILED_STATUSES for r in self.rows)
 
     def line(self) -> str:
-        fitted = self.count("ok")
-        per = [r["seconds"] for r in self.rows if r["status"] == "ok" and r.get("seconds") is not None]
+        fitted = self.count("ok") + self.count("uncertain")
+        done = [r for r in self.rows if r["status"] in WRITTEN_STATUSES]
+        per = [r["seconds"] for r in done if r.get("seconds") is not None]
         t = f"; {sum(per) / len(per):.2f} s per fitted scan" if per else ""
         skipped = self.count("skipped")
         sk = f", {skipped} skipped (exist; --overwrite)" if skipped else ""
+        unc = self.count("uncertain")
+        un = f" ({unc} uncertain: written and flagged)" if unc else ""
         where = f" -> {self.out_dir / 'summary.csv'}" if self.out_dir else ""
-        return f"arteq-fit: {fitted} fitted, {self.failed} failed{sk} in {self.seconds:.1f} s{t}{where}"
+        return f"arteq-fit: {fitted} fitted{un}, {self.failed} failed{sk} in {self.seconds:.1f} s{t}{where}"
 
     def to_json(self) -> dict[str, Any]:
         return {
-            "fitted": self.count("ok"),
+            "fitted": self.count("ok") + self.count("uncertain"),
+            "uncertain": self.count("uncertain"),
             "failed": self.failed,
             "skipped": self.count("skipped"),
             "seconds": self.seconds,
@@ -186,13 +193,13 @@ def fit_files(
                 continue
             res.name = item["out_name"]
             row.update(res.summary_row(), input=item["name"])
-            if res.status == "ok":
+            if res.written:
                 try:
                     write_result(res, out, preview=preview, source=item["name"])
                 except Exception as exc:  # noqa: BLE001
                     fail(row, f"{item['name']}: writing the outputs failed ({type(exc).__name__}: {exc})")
                     continue
-            elif res.message:
+            if res.message and res.status != "ok":
                 log(res.message)
             summary.rows.append(row)
         if bar is not None:

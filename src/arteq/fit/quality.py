@@ -1,20 +1,31 @@
-"""Is a fit a fit? Measured after fitting, each value with the threshold that flags it.
+"""Is a fit a fit? Measured after fitting; each value has thresholds in two tiers.
 
-| value | meaning | flag (reason code) when |
-|---|---|---|
-| ``inlier_frac`` | scan points within ``inlier_cm`` of the fit | < ``min_inlier_frac`` (``low_inliers``) |
-| ``rmse_in_cm`` | RMS distance of those inliers | > ``max_rmse_cm`` (``high_residual``) |
-| ``coverage`` | spread vertices with a point within ``cover_cm`` | < ``min_coverage`` (``low_coverage``) |
-| ``parts_covered`` | parts (of 22) holding >= 0.5 % of the inliers | < ``min_parts`` (``missing_parts``) |
-| ``label_agree`` | inliers whose fitted part is among their 2 most probable predicted parts | reported only |
-| ``max_abs_beta`` | shape plausibility (units of sigma) | > ``max_beta`` (``implausible_shape``) |
-| ``extent_m`` | robust size of the cloud | outside ``extent_m_range`` (``wrong_size``) |
+A fit is **refused** (status ``not_single_body``, nothing written) when the scan is not one body, and
+**uncertain** (status ``uncertain``: written, flagged with the reason in its npz, json and the summary;
+``--strict`` refuses it) when it is a body but the fit may be wrong. Both tiers were calibrated on a
+labelled set of real failures and non-bodies (children, heavy builds, acrobatic poses, clutter,
+spheres, boxes, two people, a body beside a large object): ``experiments/fitting/check_calibration.md``.
 
-Clutter removal (:mod:`arteq.fit.clean`) adds the flag ``second_body`` when the scan holds a second
-body-sized cluster apart from the fitted one (two people).
+Values (``fit_quality``) and the reason codes they set (thresholds: :class:`QualityThresholds`):
 
-One human body with 10 % outliers and 5 mm noise sits well inside every threshold; two bodies side by
-side, a sphere or a box fail at least one (measured: ``experiments/fitting/README.md``).
+- ``inlier_frac``: scan points within ``inlier_cm`` of the fit. Refused below ``refuse_inlier_frac``
+  (``no_body_surface``); uncertain below ``min_inlier_frac`` (``low_inliers``).
+- ``coverage``: evenly spread vertices with a point within ``cover_cm``. Uncertain below
+  ``min_coverage`` (``low_coverage``). Refused when a whole body is covered (>= ``unexplained_coverage``)
+  yet explains fewer than ``unexplained_inlier_frac`` of the points (``unexplained_points``: something
+  body-sized beside it).
+- ``rmse_in_cm``: RMS distance of the inliers; uncertain above ``max_rmse_cm`` (``high_residual``).
+- ``parts_covered``: parts (of 22) holding >= 0.5 % of the inliers; uncertain below ``min_parts``
+  (``missing_parts``).
+- ``label_agree``: inliers whose fitted part is among their 2 most probable predicted parts; reported
+  only (on the calibration set it flagged no failure the other values missed, and it depends on how
+  sharp a network's part probabilities are).
+- ``max_abs_beta``: shape plausibility (units of sigma); uncertain above ``max_beta``
+  (``implausible_shape``: children and extreme builds outside an adult shape space).
+- ``extent_m``: robust size of the cloud; refused outside ``extent_m_range`` (``wrong_size``).
+
+Clutter removal (:mod:`arteq.fit.clean`) adds the refusing flag ``second_body`` when the scan holds a
+second body-sized cluster apart from the fitted one (two people).
 """
 
 from __future__ import annotations
@@ -23,17 +34,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: Reason codes that refuse a fit (the scan is not one body); every other code makes it uncertain.
+REFUSE_FLAGS = ("no_body_surface", "unexplained_points", "wrong_size", "second_body")
+
 
 @dataclass
 class QualityThresholds:
+    """Both tiers' thresholds (values from experiments/fitting/check_calibration.md)."""
+
     inlier_cm: float = 2.0
     cover_cm: float = 4.0
-    min_inlier_frac: float = 0.65
-    max_rmse_cm: float = 1.5
-    min_coverage: float = 0.75
-    min_parts: int = 14
+    # refused: not one body
+    refuse_inlier_frac: float = 0.30
+    unexplained_inlier_frac: float = 0.55
+    unexplained_coverage: float = 0.85
+    extent_m_range: tuple[float, float] = (0.35, 3.0)
+    # uncertain: a body, but the fit may be wrong
+    min_inlier_frac: float = 0.88
+    min_coverage: float = 0.90
+    min_parts: int = 15
     max_beta: float = 4.0
-    extent_m_range: tuple[float, float] = (0.5, 3.0)
+    max_rmse_cm: float = 1.5
 
 
 def fit_quality(
@@ -77,20 +98,7 @@ def fit_quality(
     q = np.percentile(proj, [1, 99], axis=0)
     extent = float((q[1] - q[0]).max())
     max_beta = float(np.abs(betas).max()) if len(betas) else 0.0
-    flags = []
-    if inlier_frac < th.min_inlier_frac:
-        flags.append("low_inliers")
-    if rmse > th.max_rmse_cm:
-        flags.append("high_residual")
-    if coverage < th.min_coverage:
-        flags.append("low_coverage")
-    if parts_covered < th.min_parts:
-        flags.append("missing_parts")
-    if max_beta > th.max_beta:
-        flags.append("implausible_shape")
-    if not th.extent_m_range[0] <= extent <= th.extent_m_range[1]:
-        flags.append("wrong_size")
-    return {
+    values = {
         "inlier_frac": inlier_frac,
         "rmse_in_cm": rmse,
         "coverage": coverage,
@@ -99,14 +107,55 @@ def fit_quality(
         "max_abs_beta": max_beta,
         "extent_m": extent,
         "mean_dist_cm": float(d.mean() * 100),
-        "flags": flags,
+        "inlier_cm": th.inlier_cm,
     }
+    values["flags"] = quality_flags(values, th)
+    return values
 
 
-def describe_flags(q: dict) -> str:
-    """One human-readable clause for the flags of :func:`fit_quality`."""
+def quality_flags(q: dict, thresholds: QualityThresholds | None = None) -> list[str]:
+    """Reason codes of the quality values ``q`` (:func:`fit_quality`'s keys; empty: the fit passes)."""
+    th = thresholds or QualityThresholds()
+    inl, cov = q["inlier_frac"], q["coverage"]
+    flags = []
+    if inl < th.refuse_inlier_frac:
+        flags.append("no_body_surface")
+    elif inl < th.unexplained_inlier_frac and cov >= th.unexplained_coverage:
+        flags.append("unexplained_points")
+    if not th.extent_m_range[0] <= q["extent_m"] <= th.extent_m_range[1]:
+        flags.append("wrong_size")
+    if inl < th.min_inlier_frac:
+        flags.append("low_inliers")
+    if cov < th.min_coverage:
+        flags.append("low_coverage")
+    if q["parts_covered"] < th.min_parts:
+        flags.append("missing_parts")
+    if q["max_abs_beta"] > th.max_beta:
+        flags.append("implausible_shape")
+    if q["rmse_in_cm"] > th.max_rmse_cm:
+        flags.append("high_residual")
+    return flags
+
+
+def verdict(flags: list[str]) -> str:
+    """``"not_single_body"`` when a refusing flag (:data:`REFUSE_FLAGS`) is set, ``"uncertain"`` when any
+    other one is, else ``"ok"``."""
+    if any(f in REFUSE_FLAGS for f in flags):
+        return "not_single_body"
+    return "uncertain" if flags else "ok"
+
+
+def describe_flags(q: dict, flags: list[str] | None = None) -> str:
+    """One human-readable clause for ``flags`` (default: all flags of :func:`fit_quality`'s ``q``)."""
     parts = {
-        "low_inliers": f"only {q['inlier_frac']:.0%} of the points lie on the fitted body",
+        "no_body_surface": f"only {q['inlier_frac']:.0%} of the points lie on the fitted body",
+        "unexplained_points": (
+            f"the fitted body explains only {q['inlier_frac']:.0%} of the points although the scan covers "
+            f"{q['coverage']:.0%} of it: something body-sized beside it"
+        ),
+        "low_inliers": (
+            f"only {q['inlier_frac']:.0%} of the points within {q.get('inlier_cm', 2.0):g} cm of the fit"
+        ),
         "high_residual": f"inlier residual {q['rmse_in_cm']:.1f} cm",
         "low_coverage": f"the scan covers only {q['coverage']:.0%} of the fitted body",
         "missing_parts": f"points on only {q['parts_covered']} of 22 body parts",
@@ -118,4 +167,4 @@ def describe_flags(q: dict) -> str:
             f"{q.get('second_body_gap_m', 0.0):.2f} m away)"
         ),
     }
-    return "; ".join(parts[f] for f in q["flags"])
+    return "; ".join(parts[f] for f in (q["flags"] if flags is None else flags))
