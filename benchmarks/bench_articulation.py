@@ -1,6 +1,6 @@
 """Articulated equivariance of old against new architecture, at random initialisation and trained.
 
-    python benchmarks/bench_articulation.py [--poses 4] [--elements 2] \
+    python benchmarks/bench_articulation.py [--poses 4] [--elements 2] [--candidates] \
         [--trained old=anny22 new=outputs/compare/local_invariant ...]
 
 Rows: the old configuration (the shipped ``anny22`` network's: radii scaled to 0.25-0.51 m at 500 points,
@@ -30,12 +30,33 @@ OLD_BACKBONE = {
 }  # fmt: skip
 
 
-def configs(points: int) -> dict[str, dict]:
+#: ``--candidates``: the locality variants compared at initialisation when the new default was chosen.
+CANDIDATES = {
+    "old + neighbour mean": {"normalize": True},
+    "metric radii, plain sums, strides 2-1-2-1": {"radii": [0.08, 0.113, 0.16, 0.16], "normalize": False},
+    "metric radii, neighbour mean, strides 2-1-2-1": {"radii": [0.08, 0.113, 0.16, 0.16], "normalize": True},
+    "smaller radii 0.06-0.11, neighbour mean, strides 2-1-1-1": {
+        "radii": [0.06, 0.08, 0.11, 0.11], "normalize": True, "strides": [2, 1, 1, 1],
+        "neighbours": [32, 16, 16, 16],
+    },
+    "metric radii, neighbour mean, strides 1-1-1-1": {
+        "radii": [0.08, 0.113, 0.16, 0.16], "normalize": True, "strides": [1, 1, 1, 1],
+        "neighbours": [16, 16, 16, 16],
+    },
+}  # fmt: skip
+
+
+def configs(points: int, candidates: bool = False) -> dict[str, dict]:
     new = default_net_config(points)
     old = copy.deepcopy(new)
     old["parent_conditioning"] = "aligned"
     old["backbone"] |= OLD_BACKBONE
-    return {"old (random init)": old, "new (random init)": new}
+    out = {"old (random init)": old, "new (random init)": new}
+    for name, bb in CANDIDATES.items() if candidates else ():
+        cfg = copy.deepcopy(old)
+        cfg["backbone"] |= bb
+        out[f"{name} (random init)"] = cfg
+    return out
 
 
 def main() -> None:
@@ -45,11 +66,12 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=500)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--trained", nargs="*", default=[], metavar="NAME=CKPT")
+    ap.add_argument("--candidates", action="store_true", help="also the locality variants at random init")
     ap.add_argument("--json")
     args = ap.parse_args()
     body = create_body({"name": "anny22"})
     nets = {}
-    for name, cfg in configs(args.points).items():
+    for name, cfg in configs(args.points, args.candidates).items():
         torch.manual_seed(args.seed)
         nets[name] = build_net(cfg)
     from arteq.pretrained.card import load_module
