@@ -24,7 +24,7 @@ from arteq.fit.api import Fitter
 from arteq.fit.cli import main as cli_main
 from arteq.fit.demo import synthetic_scan
 from arteq.fit.files import fit_files
-from conftest import TINY_NET
+from fit_helpers import write_tiny_checkpoint
 
 
 @pytest.fixture(scope="module")
@@ -34,17 +34,7 @@ def body(anny22):
 
 @pytest.fixture(scope="module")
 def tiny_ckpt(tmp_path_factory):
-    """An untrained, weights-only checkpoint in the shipped format (network input: 500 points)."""
-    from arteq.training.module import ArtEqModule
-
-    torch.manual_seed(0)
-    m = ArtEqModule(net=TINY_NET, body_model={"name": "anny22"}, data={"num_points": 500})
-    path = tmp_path_factory.mktemp("ckpt") / "tiny.ckpt"
-    import lightning
-
-    state = {"state_dict": m.state_dict(), "hyper_parameters": dict(m.hparams)}
-    torch.save({**state, "pytorch-lightning_version": lightning.__version__}, path)
-    return path
+    return write_tiny_checkpoint(tmp_path_factory.mktemp("ckpt") / "tiny.ckpt")
 
 
 class OracleFitter(Fitter):

@@ -194,6 +194,78 @@ def _anny_row(anny: dict | None) -> dict[str, Any]:
     }
 
 
+class Hyperparameters(dict):
+    """A checkpoint's hyper-parameters (``net``, ``body_model``, ``data``...): a dict whose keys also read as
+    attributes, like Lightning's ``hparams``."""
+
+    def __getattr__(self, key: str) -> Any:
+        try:
+            return self[key]
+        except KeyError:
+            raise AttributeError(key) from None
+
+
+class FitNetwork(torch.nn.Module):
+    """A trained network with its body, for inference without Lightning: what
+    :class:`arteq.training.ArtEqModule` computes at test time, for the fields fitting needs (the network's
+    outputs plus ``transl [B, 3]``, the translation placing the predicted body on the cloud).
+
+    Built by :func:`load_network` from a checkpoint's ``hyper_parameters`` (``net``: the network config for
+    :func:`arteq.models.registry.build_net`; ``body_model``: the body for :func:`arteq.body.create_body`)
+    and the ``net.*`` weights of its ``state_dict``."""
+
+    def __init__(self, net: torch.nn.Module, body: torch.nn.Module, hparams: dict[str, Any]):
+        from arteq.models.placement import body_centroid_matrix
+
+        super().__init__()
+        self.net, self.body = net, body
+        self.hparams = Hyperparameters(hparams)
+        for p in self.body.parameters():
+            p.requires_grad_(False)
+        self.register_buffer("centroid_matrix", body_centroid_matrix(body, net.num_parts), persistent=False)
+
+    def forward(self, points: torch.Tensor) -> dict[str, torch.Tensor]:
+        from arteq.models.placement import estimate_translation
+        from arteq.models.precision import full_precision, upcast
+
+        pred = self.net(points)
+        with full_precision(points):  # the body model (LBS) and placement in float32 at least
+            posed = self.body(betas=upcast(pred["betas"]), pose=upcast(pred["local_rotmats"]))
+            pred["transl"] = estimate_translation(
+                posed.vertices, self.centroid_matrix, points, pred["pool_weights"]
+            )
+        return pred
+
+
+def load_network(path: str | Path) -> FitNetwork:
+    """The :class:`FitNetwork` of a checkpoint file (read by :func:`arteq.io.runs.read_checkpoint`,
+    weights-only), in eval mode on the CPU; imports neither Lightning nor the training code.
+    Raises ``ValueError`` naming the file when it is not a trained arteq model."""
+    from arteq.body.factory import create_body
+    from arteq.io.runs import read_checkpoint
+    from arteq.models.registry import build_net
+
+    state = read_checkpoint(path)
+    hp = state.get("hyper_parameters") if isinstance(state, dict) else None
+    if not isinstance(hp, dict) or "state_dict" not in state or "net" not in hp:
+        keys = sorted(state) if isinstance(state, dict) else type(state).__name__
+        raise ValueError(
+            f"{path}: not an arteq checkpoint (needs state_dict and hyper_parameters.net; has {keys})"
+        )
+    body = create_body(hp.get("body_model") or {})
+    net_cfg = dict(hp["net"])
+    net_cfg.setdefault("num_betas", body.num_betas)  # as ArtEqModule builds it
+    net = build_net(net_cfg)
+    weights = {k[4:]: v for k, v in state["state_dict"].items() if k.startswith("net.")}
+    missing, unexpected = net.load_state_dict(weights, strict=False)
+    if missing or unexpected:
+        raise ValueError(
+            f"{path}: the weights do not match the network its config builds "
+            f"(missing {missing[:5]}, unexpected {unexpected[:5]})"
+        )
+    return FitNetwork(net, body, hp).eval()
+
+
 def resolve_device(device: str) -> torch.device:
     if device == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -251,16 +323,15 @@ class Fitter:
         strict: bool = False,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
-        from arteq.training.module import ArtEqModule
 
         if points < MIN_POINTS:
             raise ValueError(f"points must be >= {MIN_POINTS}, got {points}")
         self.device = resolve_device(device)
         self.ckpt_path = resolve_checkpoint(ckpt)
         try:
-            module = ArtEqModule.load_from_checkpoint(
-                str(self.ckpt_path), map_location="cpu", weights_only=True
-            )
+            module = load_network(self.ckpt_path)
+        except ValueError:
+            raise
         except Exception as exc:  # noqa: BLE001 - name the file whatever went wrong
             raise ValueError(
                 f"{self.ckpt_path}: cannot load the checkpoint ({type(exc).__name__}: {exc})"

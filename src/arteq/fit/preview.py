@@ -2,7 +2,8 @@
 fitted mesh, two views.
 
 Views are orthographic in the fitted body's own frame (front and left side, head up), whatever the
-scan's orientation. Drawn with matplotlib (Agg) as depth-sorted points: no 3D toolkit, fast.
+scan's orientation. Drawn with matplotlib as depth-sorted points (no 3D toolkit, fast) on a figure of
+its own with the Agg canvas: the process's matplotlib backend is never switched.
 """
 
 from __future__ import annotations
@@ -12,22 +13,22 @@ from pathlib import Path
 import numpy as np
 
 
-def _normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    vn = np.zeros_like(v)
-    for c in range(3):
-        np.add.at(vn, f[:, c], fn)
-    return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
+def part_colours(k: int = 22) -> np.ndarray:
+    """``[k, 4]`` RGBA part colours (tab20, then Set1), from matplotlib's colormap registry: nothing global
+    is touched (``arteq.viz.data_grid`` switches the backend on import, so it is not imported here)."""
+    from matplotlib import colormaps
+
+    tab, extra = colormaps["tab20"], colormaps["Set1"]
+    return np.asarray([tab(i) for i in range(min(k, 20))] + [extra(i) for i in range(k - 20)])
 
 
 def render_preview(res, out: str | Path, dpi: int = 80) -> Path:
     """Write the preview of ``res`` (:class:`arteq.fit.FitResult`) to ``out`` (PNG)."""
-    import matplotlib
+    import torch
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from arteq.viz.data_grid import part_colours
+    from arteq.geometry.normals import vertex_normals
 
     s = res.scale_to_m
     r0 = np.asarray(res.global_rotmats[0], dtype=np.float64)
@@ -35,11 +36,15 @@ def render_preview(res, out: str | Path, dpi: int = 80) -> Path:
     # body frame of the fit (SMPL / anny22 axes: x left, y up, z front), metres
     to_body = lambda x: (np.asarray(x, dtype=np.float64) * s - pelvis) @ r0  # noqa: E731
     pts, verts = to_body(res.scan_points), to_body(res.vertices)
-    normals = _normals(verts, np.asarray(res.faces))
+    faces = torch.as_tensor(np.asarray(res.faces, dtype=np.int64))
+    normals = vertex_normals(torch.from_numpy(verts)[None], faces)[0].numpy()
     cols = part_colours(22)
     labels = np.clip(np.asarray(res.scan_labels, dtype=np.int64), 0, 21)
     views = [("front", 0, 2, 1.0), ("side", 2, 0, -1.0)]  # name, horizontal axis, depth axis, sign
-    fig, axes = plt.subplots(2, 2, figsize=(6.4, 6.6))
+    # a Figure of its own with the Agg canvas: no pyplot, the caller's matplotlib backend stays as it was
+    fig = Figure(figsize=(6.4, 6.6))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2, 2)
     lim = np.abs(np.concatenate([pts, verts])).max(0) + 0.05
     clutter = getattr(res, "clutter_points", None)
     clutter = to_body(clutter) if clutter is not None and len(clutter) else None
@@ -76,5 +81,4 @@ def render_preview(res, out: str | Path, dpi: int = 80) -> Path:
     )
     fig.tight_layout()
     fig.savefig(out, dpi=dpi, format="png")
-    plt.close(fig)
     return Path(out)

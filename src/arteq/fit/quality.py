@@ -11,9 +11,9 @@ Values (``fit_quality``) and the reason codes they set (thresholds: :class:`Qual
 - ``inlier_frac``: scan points within ``inlier_cm`` of the fit. Refused below ``refuse_inlier_frac``
   (``no_body_surface``); uncertain below ``min_inlier_frac`` (``low_inliers``).
 - ``coverage``: evenly spread vertices with a point within ``cover_cm``. Uncertain below
-  ``min_coverage`` (``low_coverage``). Refused when a whole body is covered (>= ``unexplained_coverage``)
-  yet explains fewer than ``unexplained_inlier_frac`` of the points (``unexplained_points``: something
-  body-sized beside it).
+  ``min_coverage`` (``low_coverage``). Refused when a whole body is covered (>= ``unexplained[1]``)
+  yet explains fewer than ``unexplained[0]`` of the points (``unexplained_points``: something body-sized
+  beside it).
 - ``rmse_in_cm``: RMS distance of the inliers; uncertain above ``max_rmse_cm`` (``high_residual``).
 - ``parts_covered``: parts (of 22) holding >= 0.5 % of the inliers; uncertain below ``min_parts``
   (``missing_parts``).
@@ -44,12 +44,13 @@ class QualityThresholds:
 
     inlier_cm: float = 2.0
     cover_cm: float = 4.0
-    # refused: not one body
+    #: refused (not one body): inliers below this fraction
     refuse_inlier_frac: float = 0.30
-    unexplained_inlier_frac: float = 0.55
-    unexplained_coverage: float = 0.85
+    #: refused: (inliers below, coverage at least): a whole body fitted, as much again beside it
+    unexplained: tuple[float, float] = (0.55, 0.85)
+    #: refused: robust extent outside this range (metres)
     extent_m_range: tuple[float, float] = (0.35, 3.0)
-    # uncertain: a body, but the fit may be wrong
+    #: uncertain (written, flagged): inliers, coverage, parts, |beta|, inlier RMS beyond these
     min_inlier_frac: float = 0.88
     min_coverage: float = 0.90
     min_parts: int = 15
@@ -120,7 +121,7 @@ def quality_flags(q: dict, thresholds: QualityThresholds | None = None) -> list[
     flags = []
     if inl < th.refuse_inlier_frac:
         flags.append("no_body_surface")
-    elif inl < th.unexplained_inlier_frac and cov >= th.unexplained_coverage:
+    elif inl < th.unexplained[0] and cov >= th.unexplained[1]:
         flags.append("unexplained_points")
     if not th.extent_m_range[0] <= q["extent_m"] <= th.extent_m_range[1]:
         flags.append("wrong_size")

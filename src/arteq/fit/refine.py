@@ -37,6 +37,8 @@ import torch
 
 from arteq.body.lbs import skin
 from arteq.body.skeleton import NUM_JOINTS
+from arteq.geometry.normals import vertex_normals
+from arteq.geometry.pointops import fps_from_centroid
 
 
 @dataclass
@@ -83,30 +85,16 @@ class RefineOutput:
     seconds: float = 0.0
 
 
-def vertex_normals(
-    vertices: torch.Tensor, faces: torch.Tensor, incidence: torch.Tensor | None = None
-) -> torch.Tensor:
-    """Area-weighted unit vertex normals. ``vertices [B, V, 3]``, ``faces [F, 3]`` -> ``[B, V, 3]``;
-    ``incidence``: optional sparse ``[V, F]`` vertex-face matrix (faster on CPU)."""
-    tri = vertices[:, faces]  # [B, F, 3, 3]
-    fn = torch.linalg.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
-    if incidence is not None:
-        b, f, _ = fn.shape
-        vn = (incidence @ fn.permute(1, 0, 2).reshape(f, b * 3)).reshape(-1, b, 3).permute(1, 0, 2)
-    else:
-        vn = torch.zeros_like(vertices)
-        for c in range(3):
-            vn.index_add_(1, faces[:, c], fn)
-    return torch.nn.functional.normalize(vn, dim=-1)
-
-
 class BodyTables:
     """Per-body constants of the refinement, computed once (:func:`body_tables` caches them): the
     model -> scan vertex subset, the vertex-face incidence, and the joint regressor folded into the
     template and shape space (rest joints are linear in the betas)."""
 
     def __init__(self, body: torch.nn.Module, m2s_vertices: int):
-        self.m2s_subset = farthest_vertices(body.v_template, m2s_vertices).to(body.v_template.device)
+        # evenly spread vertices: the FPS of arteq.geometry from the vertex nearest the centroid
+        template = body.v_template.detach().double().cpu()[None]
+        count = min(m2s_vertices, template.shape[1])
+        self.m2s_subset = fps_from_centroid(template, count)[0].to(body.v_template.device)
         faces = body.faces
         f = faces.shape[0]
         rows = faces.reshape(-1)
@@ -167,19 +155,6 @@ def allowed_parts(probs: torch.Tensor, top: int = 2, min_prob: float = 0.2) -> t
     out = torch.zeros_like(probs, dtype=torch.bool)
     out.scatter_(-1, idx, keep)
     return out
-
-
-def farthest_vertices(template: torch.Tensor, count: int) -> torch.Tensor:
-    """``[count]`` long: an evenly spread vertex subset (farthest point sampling, deterministic)."""
-    v = template.detach().double().cpu().numpy()
-    count = min(count, v.shape[0])
-    chosen = np.empty(count, dtype=np.int64)
-    chosen[0] = int(np.linalg.norm(v - v.mean(0), axis=1).argmin())
-    dist = ((v - v[chosen[0]]) ** 2).sum(1)
-    for i in range(1, count):
-        chosen[i] = int(dist.argmax())
-        np.minimum(dist, ((v - v[chosen[i]]) ** 2).sum(1), out=dist)
-    return torch.from_numpy(chosen)
 
 
 class _KDTreeMatcher:
