@@ -16,7 +16,9 @@ Cases (each: ``--n`` generated bodies with known ground truth, 5000 points, 5 mm
   scan that differ only in the resampling seed (``clean vs clean, other seed``: the network sees another
   random subset of the points).
 Reported: mean and median V2V (cm, in metres after unit conversion), MPJPE is not available for
-arbitrary inputs so it is left out; the status counts (``ok`` / ``not_single_body``), seconds per scan.
+arbitrary inputs so it is left out; the status counts (``ok`` / ``uncertain`` / ``not_single_body`` /
+``error``; ``uncertain`` since the check's calibration, experiments/fitting/check_calibration.md), seconds
+per scan.
 """
 
 from __future__ import annotations
@@ -99,12 +101,13 @@ def main() -> None:
     if a.cases:
         cases = [c for c in cases if any(k in c for k in a.cases.split(","))]
     print(f"checkpoint {fitter.checkpoint_id}, refine={not a.no_refine}, {a.n} scans per case\n")
-    print("| case | V2V cm mean | V2V cm median | max | ok / not_single_body / error | s per scan "
-          "| vs clean fit cm, mean / max | clean vs clean, other seed |")  # fmt: skip
+    print("| case | V2V cm mean | V2V cm median | max | ok / uncertain / not_single_body / error "
+          "| s per scan | vs clean fit cm, mean / max | clean vs clean, other seed |")  # fmt: skip
     print("|---|---:|---:|---:|---|---:|---:|---:|")
     other = None
     for case in cases:
-        errs, status, secs, vs_clean, spread = [], {"ok": 0, "not_single_body": 0, "error": 0}, [], [], []
+        errs, secs, vs_clean, spread = [], [], [], []
+        status = {"ok": 0, "uncertain": 0, "not_single_body": 0, "error": 0}
         for s in scans(body, case, a.n):
             mm = case.startswith("millimetres")
             t = time.perf_counter()
@@ -125,7 +128,8 @@ def main() -> None:
                     spread.append(float(np.linalg.norm(c2.vertices - c.vertices, axis=1).mean() * 100))
         e = np.array(errs) if errs else np.array([np.nan])
         print(f"| {case} | {e.mean():.2f} | {np.median(e):.2f} | {e.max():.2f} | "
-              f"{status['ok']} / {status['not_single_body']} / {status['error']} | {np.median(secs):.2f} | "
+              f"{status['ok']} / {status['uncertain']} / {status['not_single_body']} / {status['error']} | "
+              f"{np.median(secs):.2f} | "
               + (f"{np.mean(vs_clean):.2f} / {np.max(vs_clean):.2f} | " if vs_clean else "- | ")
               + (f"{np.mean(spread):.2f} / {np.max(spread):.2f} |" if spread else "- |"),
               flush=True)  # fmt: skip
