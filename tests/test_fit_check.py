@@ -105,3 +105,48 @@ def test_shipped_model_refuses_a_sphere_and_two_people(body, tmp_path):
         assert rows[name]["status"] == "not_single_body", rows[name]
         assert ": not a single body (" in rows[name]["message"]
         assert list(out.glob(f"{name}.*")) == []
+
+
+def _calibration_module():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / "fitting" / "check_calibration.py"
+    spec = importlib.util.spec_from_file_location("check_calibration", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_calibration_script_set_and_table():
+    """experiments/fitting/check_calibration.py (rerun with --model for the next network): its labelled set
+    has every group with ground truth for the bodies, and its table counts false refusals / acceptances
+    as check_calibration.md defines them."""
+    cal = _calibration_module()
+    items = cal.labelled_set(seed=0)
+    groups = {}
+    for it in items:
+        groups[it["group"]] = groups.get(it["group"], 0) + 1
+        assert it["points"].ndim == 2 and it["points"].shape[1] == 3 and len(it["points"]) >= 5000
+        assert (it.get("vertices") is None) == (it["group"] == "non-bodies"), it["name"]
+    assert groups == {"everyday adults": 8, "children 3-12 y": 10, "heavy / extreme builds": 10,
+                      "acrobatic adults": 12, "10% clutter": 5, "non-bodies": 9}  # fmt: skip
+    ages = [int(it["name"].split("_")[1][:-1]) for it in items if it["group"] == "children 3-12 y"]
+    assert all(3 <= a <= 12 for a in ages), ages
+    good = {"inlier_frac": 0.95, "rmse_in_cm": 1.0, "coverage": 0.97, "parts_covered": 20,
+            "max_abs_beta": 1.0, "extent_m": 1.6, "flags": []}  # fmt: skip
+    child = {**good, "max_abs_beta": 4.5, "flags": ["implausible_shape"]}
+
+    def rec(name, status, usable, body, quality):
+        return {"group": "g", "name": name, "status": status, "usable": usable, "body": body,
+                "quality": quality, "chamfer_cm": 1.0 if body else None}  # fmt: skip
+
+    recs = [
+        rec("a", "ok", True, True, good),
+        rec("b", "uncertain", True, True, child),  # refused before (|beta| > 4), written now
+        rec("c", "ok", False, True, good),  # unusable body as plain ok: false acceptance before and after
+        rec("d", "uncertain", False, False, good),  # a non-body written: false acceptance after
+    ]
+    lines = [line.split(" | ") for line in cal.table(recs).splitlines()[2:] if line.startswith("| all ")]
+    # columns: group, scans, usable, before FR, before FA, after FR, after FA, ...
+    assert lines[0][1:7] == ["4", "2", "1", "2", "0", "2"], lines
