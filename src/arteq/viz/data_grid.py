@@ -9,11 +9,9 @@ import argparse
 from pathlib import Path
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from matplotlib.figure import Figure
 
 from arteq.body import create_body  # noqa: E402
 from arteq.data.dataset import BodyScanDataset  # noqa: E402
@@ -22,8 +20,8 @@ from arteq.data.poses import SyntheticIDPoses, SyntheticOODPoses  # noqa: E402
 
 def part_colours(k: int = 22) -> np.ndarray:
     """``[k, 4]`` RGBA colours, neighbours in the tree get distinct hues."""
-    cmap = plt.get_cmap("tab20")
-    extra = plt.get_cmap("Set1")
+    cmap = matplotlib.colormaps["tab20"]
+    extra = matplotlib.colormaps["Set1"]
     cols = [cmap(i) for i in range(20)] + [extra(i) for i in range(k - 20)]
     return np.asarray(cols[:k])
 
@@ -31,7 +29,8 @@ def part_colours(k: int = 22) -> np.ndarray:
 def draw_grid(samples: list[list[dict]], titles: list[str], out: Path, point_size: float = 0.8) -> None:
     """One row per entry of ``samples`` (list of sample dicts), front view (x right, y up)."""
     rows, cols = len(samples), max(len(r) for r in samples)
-    fig, axes = plt.subplots(rows, cols, figsize=(1.6 * cols, 2.2 * rows), squeeze=False)
+    fig = Figure(figsize=(1.6 * cols, 2.2 * rows))
+    axes = fig.subplots(rows, cols, squeeze=False)
     colours = part_colours()
     for r, row in enumerate(samples):
         for c in range(cols):
@@ -51,7 +50,6 @@ def draw_grid(samples: list[list[dict]], titles: list[str], out: Path, point_siz
     fig.subplots_adjust(left=0.01, right=0.99, bottom=0.01, top=0.96, wspace=0.0, hspace=0.12)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
-    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> Path:

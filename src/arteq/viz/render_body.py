@@ -10,11 +10,9 @@ import argparse
 from pathlib import Path
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
 from arteq.body import create_body  # noqa: E402
@@ -46,14 +44,14 @@ def demo_poses() -> dict[str, torch.Tensor]:
 
 
 def render(body, out: Path, max_faces: int = 30000, dpi: int = 70, azim: float = 60.0) -> Path:
-    cmap = plt.get_cmap("tab20", 22)
+    cmap = matplotlib.colormaps["tab20"].resampled(22)
     faces = body.faces.cpu().numpy()
     rng = np.random.default_rng(0)
     keep = np.sort(rng.choice(len(faces), min(max_faces, len(faces)), replace=False))
     faces = faces[keep]
     face_part = body.part_labels.cpu().numpy()[faces[:, 0]]
     poses = demo_poses()
-    fig = plt.figure(figsize=(3.2 * len(poses), 4.2))
+    fig = Figure(figsize=(3.2 * len(poses), 4.2))
     with torch.no_grad():
         for i, (title, pose) in enumerate(poses.items()):
             v = body(pose=pose).vertices.cpu().numpy()
@@ -80,7 +78,6 @@ def render(body, out: Path, max_faces: int = 30000, dpi: int = 70, azim: float =
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=dpi)
-    plt.close(fig)
     return out
 
 

@@ -5,11 +5,8 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.figure import Figure
 
 from arteq.body.skeleton import JOINT_NAMES  # noqa: E402
 from arteq.io.runs import Run, body_config, data_kwargs, load_module  # noqa: E402
@@ -28,7 +25,8 @@ def convergence_plot(runs: list[Run], out: Path) -> Path:
         ("val/mpjpe_cm", "val MPJPE (cm)"),
         ("val/part_acc", "val part acc (%)"),
     ]
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    fig = Figure(figsize=(15, 4))
+    axes = fig.subplots(1, 3)
     for run in runs:
         if not run.curves:
             continue
@@ -44,14 +42,14 @@ def convergence_plot(runs: list[Run], out: Path) -> Path:
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
-    plt.close(fig)
     return out
 
 
 def per_part_plot(runs: list[Run], out: Path) -> Path:
     """Global rotation error per body part (test_id and test_ood), grouped bars per run."""
     with_parts = [r for r in runs if "rot_err_deg_per_part" in r.metrics.get("test_ood", {})]
-    fig, axes = plt.subplots(2, 1, figsize=(14, 7), sharex=True)
+    fig = Figure(figsize=(14, 7))
+    axes = fig.subplots(2, 1, sharex=True)
     width = 0.8 / max(1, len(with_parts))
     x = np.arange(len(JOINT_NAMES))
     for ax, split in zip(axes, ("test_id", "test_ood")):
@@ -65,7 +63,6 @@ def per_part_plot(runs: list[Run], out: Path) -> Path:
     axes[1].set_xticks(x, JOINT_NAMES, rotation=60, ha="right", fontsize=8)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
-    plt.close(fig)
     return out
 
 
@@ -115,7 +112,8 @@ def qualitative_figure(runs: list[Run], out: Path, samples: int = 3, max_methods
             preds.append((_label(run), module(batch["points"])["vertices"]))
     n = len(items)
     cols = 2 + len(preds)
-    fig, axes = plt.subplots(n, cols, figsize=(2.4 * cols, 2.8 * n), squeeze=False)
+    fig = Figure(figsize=(2.4 * cols, 2.8 * n))
+    axes = fig.subplots(n, cols, squeeze=False)
     step = max(1, gt.shape[1] // 3000)
     for i in range(n):
         _scatter(axes[i, 0], batch["points"][i].numpy(), "0.2", "input cloud", 1.5)
@@ -125,5 +123,4 @@ def qualitative_figure(runs: list[Run], out: Path, samples: int = 3, max_methods
             _scatter(axes[i, 2 + j], v[i, ::step].numpy(), "tab:blue", f"{name}\nV2V {v2v:.1f} cm")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
-    plt.close(fig)
     return out
