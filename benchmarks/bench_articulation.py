@@ -3,9 +3,10 @@
     python benchmarks/bench_articulation.py [--poses 4] [--elements 2] [--candidates] \
         [--trained old=anny22 new=outputs/compare/local_invariant ...]
 
-Rows: the old configuration (the shipped ``anny22`` network's: radii scaled to 0.25-0.51 m at 500 points,
-plain neighbour sums, 125 deep centres, aligned parent conditioning) and the new default
-(``conf/model/arteq.yaml``) at random initialisation with the same seed, then every ``--trained NAME=CKPT``
+Rows: the old configuration (``conf/model/arteq.yaml``, the shipped ``anny22`` network's: radii scaled to
+0.25-0.51 m at 500 points, plain neighbour sums, 125 deep centres, aligned parent conditioning) and the
+part-local one (``conf/model/arteq_local.yaml``) at random initialisation with the same seed, then every
+``--trained NAME=CKPT``
 (a checkpoint, run folder or shipped model name). Columns: :data:`arteq.models.articulation.METRICS`,
 means over the elbows, knees, shoulders and hips (both sides), ``--poses`` everyday poses and up to
 ``--elements`` order-5 group elements per joint that keep the turned limb clear of the body
@@ -24,12 +25,6 @@ from arteq.body.factory import create_body
 from arteq.models.articulation import METRICS, articulated_equivariance, default_net_config
 from arteq.models.registry import build_net
 
-OLD_BACKBONE = {
-    "radii": [0.253, 0.3573, 0.506, 0.506], "strides": [2, 1, 2, 1], "neighbours": [32, 16, 32, 16],
-    "normalize": False,
-}  # fmt: skip
-
-
 #: ``--candidates``: the locality variants compared at initialisation when the new default was chosen.
 CANDIDATES = {
     "old + neighbour mean": {"normalize": True},
@@ -47,10 +42,8 @@ CANDIDATES = {
 
 
 def configs(points: int, candidates: bool = False) -> dict[str, dict]:
-    new = default_net_config(points)
-    old = copy.deepcopy(new)
-    old["parent_conditioning"] = "aligned"
-    old["backbone"] |= OLD_BACKBONE
+    new = default_net_config(points, "arteq_local")
+    old = default_net_config(points, "arteq")
     out = {"old (random init)": old, "new (random init)": new}
     for name, bb in CANDIDATES.items() if candidates else ():
         cfg = copy.deepcopy(old)

@@ -21,7 +21,7 @@ def _metrics(acc, v2v, mpjpe):
     }
 
 
-def make_run(root, name, arch="arteq", pc="invariant", augment="none", points=500, acc=(90.0, 80.0),
+def make_run(root, name, arch="arteq", pc=True, augment="none", points=500, acc=(90.0, 80.0),
              v2v=(2.0, 5.0), params=1000, mtime=None, curves=True, floor=None):  # fmt: skip
     d = root / name
     d.mkdir(parents=True)

@@ -47,9 +47,9 @@ def test_variant_composes_and_builds(variant, tiny_pn2_overrides):
     cfg = _compose(["+experiment=ablation_all", f"+sweep/variant={variant}"] + (
         tiny_pn2_overrides if variant.startswith("pointnet2") else []))  # fmt: skip
     assert cfg.variant == variant
-    expect = {"arteq_nc": ("arteq", False, "none", 500), "arteq_so3": ("arteq", "invariant", "so3", 500),
+    expect = {"arteq_nc": ("arteq", False, "none", 500), "arteq_so3": ("arteq", "aligned", "so3", 500),
               "pointnet2": ("pointnet2", None, "none", 500), "pointnet2_so3": ("pointnet2", None, "so3", 500),
-              "points_2500": ("arteq", "invariant", "none", 2500)}.get(variant)  # fmt: skip
+              "points_2500": ("arteq", "aligned", "none", 2500)}.get(variant)  # fmt: skip
     if expect:
         arch, pc, aug, pts = expect
         assert cfg.model.net.get("arch", "arteq") == arch
@@ -100,8 +100,8 @@ def test_tiny_multirun_unique_dirs_and_report(tmp_path):
     assert sorted(r.method for r in runs) == [
         "ArtEq",
         "ArtEq",
-        "ArtEq aligned",
-        "ArtEq aligned",
+        "ArtEq invariant-parent",
+        "ArtEq invariant-parent",
         "ArtEq nc",
         "ArtEq nc",
     ]
@@ -109,16 +109,18 @@ def test_tiny_multirun_unique_dirs_and_report(tmp_path):
     assert "| ArtEq nc | 200 |" in text
 
 
-def test_backbone_radii_are_metric_whatever_the_point_count():
-    # part-sized balls at every point count (the authors' radii in metres); the neighbour mean
-    # (backbone.normalize) is what lets them work at 500 points
+def test_backbone_radii_follow_point_density_and_the_local_network_keeps_them_metric():
     from arteq.config import radii_for_points
 
     paper = [0.08, 0.113, 0.16, 0.16]
     for n in (500, 1000, 2500, 5000):
-        net = _compose([f"data.num_points={n}"]).model.net
-        assert list(net.backbone.radii) == paper and net.backbone.normalize
-    # the old density-scaled radii stay available as a resolver: ${arteq.radii:[...],${data.num_points}}
-    assert radii_for_points(paper, 500)[0] == pytest.approx(0.253, abs=1e-3)
+        radii = _compose([f"data.num_points={n}"]).model.net.backbone.radii
+        assert list(radii) == radii_for_points(paper, n)
+        # same expected ball population (points per area ~ N) as the paper's radii at 5000 points
+        assert abs(radii[0] ** 2 * n - 0.08**2 * 5000) < 0.01 * 0.08**2 * 5000
+        # model=arteq_local: part-sized balls in metres at every point count, with neighbour means
+        local = _compose([f"data.num_points={n}", "model=arteq_local"]).model.net.backbone
+        assert list(local.radii) == paper and local.normalize
+    assert list(_compose(["data.num_points=5000"]).model.net.backbone.radii) == paper
     with pytest.raises(ValueError, match="point counts"):
         radii_for_points(paper, 0)

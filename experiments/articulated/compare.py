@@ -29,20 +29,30 @@ ARMS: dict[str, list[str]] = {
     # the configuration the shipped anny22 model has (radii scaled to 500 points, plain sums, aligned parent)
     "old": [*OLD_BACKBONE, "model.net.parent_conditioning=aligned", "model.net.pose_head.logit_eps=null"],
     # the same with the bounded logit standardisation of the new pose head (isolates the backbone)
-    "old_eps": [*OLD_BACKBONE, "model.net.parent_conditioning=aligned"],
-    # the new backbone (metric radii, neighbour means, 250 deep centres) with each parent conditioning
-    "local_aligned": ["model.net.parent_conditioning=aligned"],
-    "local_invariant": ["model.net.parent_conditioning=invariant"],
-    "local_none": ["model.net.parent_conditioning=none"],
+    "old_eps": [*OLD_BACKBONE, "model.net.parent_conditioning=aligned", "model.net.pose_head.logit_eps=1e-4"],
+    # the part-local network (model=arteq_local: metric radii, neighbour means, 250 deep centres, logit_eps)
+    # with each parent conditioning
+    "local_aligned": ["model=arteq_local", "model.net.parent_conditioning=aligned"],
+    "local_invariant": ["model=arteq_local", "model.net.parent_conditioning=invariant"],
+    "local_none": ["model=arteq_local", "model.net.parent_conditioning=none"],
     # + widened everyday training poses (half the training draws)
-    "local_invariant_wide": ["model.net.parent_conditioning=invariant", "data.wide_poses=0.5"],
+    "local_invariant_wide": [
+        "model=arteq_local",
+        "model.net.parent_conditioning=invariant",
+        "data.wide_poses=0.5",
+    ],
     # smaller balls
     "small_invariant": [
+        "model=arteq_local",
         "model.net.parent_conditioning=invariant",
         "model.net.backbone.radii=[0.06,0.08,0.11,0.11]",
     ],
     # the old backbone with the invariant parent (isolates the backbone from the head)
-    "old_invariant": [*OLD_BACKBONE, "model.net.parent_conditioning=invariant"],
+    "old_invariant": [
+        *OLD_BACKBONE,
+        "model.net.parent_conditioning=invariant",
+        "model.net.pose_head.logit_eps=1e-4",
+    ],
 }
 
 
@@ -89,10 +99,13 @@ def table() -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("arms", nargs="*", choices=list(ARMS))
+    ap.add_argument("arms", nargs="*", help=f"any of {', '.join(ARMS)}")
     ap.add_argument("--steps", type=int, default=500)
     ap.add_argument("--table", action="store_true")
     args = ap.parse_args()
+    unknown = [a for a in args.arms if a not in ARMS]
+    if unknown:
+        ap.error(f"unknown arms {unknown}; known: {', '.join(ARMS)}")
     for arm in args.arms:
         run(arm, args.steps)
     if args.table or not args.arms:

@@ -28,7 +28,7 @@ class EquivariantBackbone(nn.Module):
     setting: 5000 -> 2500 -> 2500 -> 1250 -> 1250 points, channels 32, 32, 64, 64.
     ``normalize``: neighbour sums divided by the neighbour count (see :mod:`arteq.equivariant.layers`);
     the constructor default ``False`` is what checkpoints made before the option hold, the project's
-    config (``conf/model/arteq.yaml``) sets ``True``.
+    part-local config (``conf/model/arteq_local.yaml``) sets ``True``.
 
     FPS: ``fps_idx`` gives the sample order of the first strided layer; it needs at least ``fps_size(N)``
     columns (extra columns are ignored: FPS is prefix-consistent). If omitted, it is computed here in

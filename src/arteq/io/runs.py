@@ -199,7 +199,7 @@ class Run:
     def parent_conditioning(self) -> bool:
         from arteq.models.heads import parent_mode
 
-        return parent_mode(config_get(self.config, "model.net.parent_conditioning", "invariant")) != "none"
+        return parent_mode(config_get(self.config, "model.net.parent_conditioning", True)) != "none"
 
     @property
     def base_name(self) -> str:

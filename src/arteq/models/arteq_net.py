@@ -21,7 +21,7 @@ class ArtEqNet(nn.Module):
         backbone: keyword arguments of :class:`arteq.equivariant.EquivariantBackbone`.
         num_betas: shape coefficients predicted.
         parent_conditioning: how the pose head sees each part's parent: ``"invariant"`` (the parent's
-            group-mean feature; the project's config), ``"aligned"`` / ``True`` (the parent's feature at the
+            group-mean feature; ``model=arteq_local``), ``"aligned"`` / ``True`` (the parent's feature at the
             same group element, the paper's form and what checkpoints from before the modes hold) or
             ``"none"`` / ``False`` (the "nc" ablation); see :func:`arteq.models.heads.parent_mode`.
         segmenter, pose_head, shape_head: keyword arguments of the heads.

@@ -30,7 +30,7 @@ part-local network shows a small ``feat_moved`` there; a whole-body rotation (``
 internally: every part moved) is the control and is exact.
 
 Command: ``python -m arteq.models.articulation --ckpt anny22`` (a checkpoint, a run folder or a shipped
-model name) or ``--config default`` (the project's network at random initialisation); see
+model name) or ``--config arteq_local`` (a model config at random initialisation); see
 ``benchmarks/bench_articulation.py`` for the table of old against new architecture.
 """
 
@@ -239,7 +239,9 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     src = ap.add_mutually_exclusive_group(required=True)
     src.add_argument("--ckpt", help="checkpoint, run folder or shipped model name (e.g. anny22)")
-    src.add_argument("--config", help="'default' (conf/model/arteq.yaml at random init) or a JSON net config")
+    src.add_argument(
+        "--config", help="a model config name at random init (arteq, arteq_local) or a JSON net config"
+    )
     ap.add_argument("--poses", type=int, default=4)
     ap.add_argument("--elements", type=int, default=2)
     ap.add_argument("--points", type=int, default=500)
@@ -256,7 +258,11 @@ def main(argv: list[str] | None = None) -> None:
         from arteq.body.factory import create_body
         from arteq.models.registry import build_net
 
-        cfg = default_net_config(args.points) if args.config == "default" else json.loads(args.config)
+        cfg = (
+            json.loads(args.config)
+            if args.config.lstrip().startswith("{")
+            else default_net_config(args.points, args.config)
+        )
         net, body = build_net(cfg), create_body({"name": "anny22"})
     res = articulated_equivariance(net, body, num_poses=args.poses, elements_per_joint=args.elements,
                                    num_points=args.points, seed=args.seed)  # fmt: skip
@@ -266,19 +272,18 @@ def main(argv: list[str] | None = None) -> None:
             json.dump({"per_joint": res.per_joint, "mean": res.mean}, f, indent=1)
 
 
-def default_net_config(num_points: int = 500) -> dict:
-    """The project's ArtEq network config (``conf/model/arteq.yaml``, resolved at ``num_points``)."""
+def default_net_config(num_points: int = 500, model: str = "arteq") -> dict:
+    """The ArtEq network config of ``conf/model/<model>.yaml`` (``arteq``: the default, ``arteq_local``: the
+    part-local variant), composed by Hydra and resolved at ``num_points``."""
+    from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
     from arteq.config import register_resolvers
     from arteq.paths import conf_dir
 
     register_resolvers()
-    root = conf_dir()
-    cfg = OmegaConf.merge(
-        {"data": {"num_points": num_points}, "body_model": {"num_betas": 10}},
-        {"model": OmegaConf.load(root / "model" / "arteq.yaml")},
-    )
+    with initialize_config_dir(version_base="1.3", config_dir=str(conf_dir())):
+        cfg = compose("train", overrides=[f"model={model}", f"data.num_points={num_points}"])
     net = OmegaConf.to_container(cfg.model.net, resolve=True)
     net.setdefault("num_betas", 10)
     return net

@@ -123,7 +123,7 @@ class PoseHead(nn.Module):
     and ~1e3-1e5 near it, so gradient clipping scaled every other gradient to nothing and the network did
     not learn (measured: total gradient norm 3e2-4e5 per step at initialisation, loss flat for 300 steps).
     ``None`` (the constructor default, what checkpoints made before the option hold) keeps the old
-    ``std + 1e-6``; the project's config sets ``1e-4``.
+    ``std + 1e-6`` (the default config too); ``model=arteq_local`` sets ``1e-4``.
 
     Why not raw weights (the authors' code): the 60 group rotations sum to zero, so raw weights that
     start out nearly equal put ``M`` near zero, where the SVD derivative (``1 / (s_i + s_j)``)
