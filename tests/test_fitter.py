@@ -94,3 +94,28 @@ def test_bad_input(body):
         fit_body(body, torch.rand(1, 100, 3), optimizer="sgd")
     with pytest.raises(ValueError, match=r"init\['pose'\]"):
         fit_body(body, torch.rand(1, 100, 3), init={"pose": torch.zeros(1, 21, 3)})
+
+
+def test_refinement_and_optimisation_return_one_result_type(body):
+    """``fit_body`` and ``refine`` return the same :class:`arteq.results.BodyFitResult`, under their old
+    names too; ``pose`` / ``["pose"]`` read the local rotations, ``pose_aa`` is their axis-angle where the
+    fitter optimises it (``fit_body``) and None after refinement; the refined body is the body model's
+    output at the returned parameters."""
+    from arteq.fit.refine import RefineConfig, RefineOutput, refine
+    from arteq.optim_fit import OptimFitResult
+    from arteq.results import BodyFitResult
+
+    assert OptimFitResult is BodyFitResult and RefineOutput is BodyFitResult
+    torch.manual_seed(0)
+    sub = farthest_point_sample(body.v_template[None], 300)[0]
+    pts = body(pose=torch.randn(1, 22, 3) * 0.2).vertices[:, sub]
+    opt = fit_body(body, pts, iters=2)
+    assert type(opt) is BodyFitResult
+    assert opt.pose is opt.local_rotmats and opt["pose"] is opt.local_rotmats
+    assert torch.allclose(roma.rotvec_to_rotmat(opt.pose_aa), opt.local_rotmats, atol=1e-6)
+    probs = torch.nn.functional.one_hot(body.part_labels[torch.cdist(pts[0], body.v_template).argmin(1)], 22)
+    init = {"local_rotmats": opt.local_rotmats, "betas": opt.betas, "transl": opt.transl}
+    ref = refine(body, pts, probs[None].float(), init, RefineConfig(iters=2))
+    assert type(ref) is BodyFitResult and ref.pose_aa is None and ref.iterations == len(ref.history) == 2
+    again = body(betas=ref["betas"], pose=ref.pose, transl=ref.transl)
+    assert torch.allclose(again.vertices, ref.vertices) and torch.allclose(again.joints, ref.joints)

@@ -9,13 +9,21 @@ One shape for every command that tests something (training, ``arteq.eval``, the 
 built straight from the metric objects (:func:`split_results`), never parsed back from logger keys.
 Method names come from the run's config (:func:`method_name`), so a PointNet++ run is labelled
 "PointNet++". Plain Python only: no torch import at module level.
+
+A body fitted to a batch of clouds, by test-time refinement (:func:`arteq.fit.refine.refine`) or by
+optimisation from a standard start (:func:`arteq.optim_fit.fit_body`), comes back as one type,
+:class:`BodyFitResult`.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
-from typing import Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # annotations only: importing this module does not import torch
+    import torch
 
 #: The evaluation splits, in the order the datamodule returns their loaders: ID, the hard OOD set, then
 #: the graded OOD scale (one / two limbs out of distribution, OOD poses without self-contact).
@@ -35,6 +43,37 @@ UNITS_NOTE = "part_acc in %, v2v/mpjpe in cm (MPJPE over the 22 body joints), ro
 FLOOR_NAME = "mean pose (floor)"
 #: Suffix of the method name per training augmentation.
 AUGMENT_SUFFIX = {"none": "", "so3": " + SO(3) aug", "z": " + z aug"}
+
+
+@dataclass
+class BodyFitResult:
+    """A body fitted to ``B`` clouds: its parameters, the posed mesh and how the fit went.
+
+    Tensors are batched, detached and on the device the fit ran on. Returned by
+    :func:`arteq.fit.refine.refine` (also named ``RefineOutput`` there) and
+    :func:`arteq.optim_fit.fit_body` (``OptimFitResult``); ``result["betas"]`` reads a field too.
+    """
+
+    local_rotmats: torch.Tensor  # [B, 22, 3, 3] local rotations, root first
+    betas: torch.Tensor  # [B, nb]
+    transl: torch.Tensor  # [B, 3] metres
+    vertices: torch.Tensor  # [B, V, 3] metres
+    joints: torch.Tensor  # [B, 22, 3] metres
+    global_rotmats: torch.Tensor  # [B, 22, 3, 3]
+    history: list[dict[str, float]] = field(default_factory=list)  # objective terms per iteration
+    iterations: int = 0
+    seconds: float = 0.0  # wall clock
+    #: ``[B, 22, 3]`` local axis-angle, from fitters that optimise it (``fit_body``); None otherwise.
+    pose_aa: torch.Tensor | None = None
+
+    @property
+    def pose(self) -> torch.Tensor:
+        """``local_rotmats`` under the name the body model's ``pose`` argument (and ``fit_body``'s
+        ``init``) uses."""
+        return self.local_rotmats
+
+    def __getitem__(self, key: str) -> Any:  # dict-style access: result["pose"]
+        return getattr(self, key)
 
 
 def _number(x: Any) -> float:

@@ -8,19 +8,7 @@ from typing import Any
 from torch import nn
 
 from arteq.body.model import BodyModel, load_body_model
-
-
-def _plain(spec: Any) -> dict[str, Any]:
-    try:
-        from omegaconf import DictConfig, OmegaConf
-
-        if isinstance(spec, DictConfig):
-            return OmegaConf.to_container(spec, resolve=True)
-    except ImportError:  # pragma: no cover - omegaconf is a dependency
-        pass
-    if spec is not None and not isinstance(spec, Mapping):
-        raise TypeError(f"create_body: expected a body module or a config mapping, got {type(spec).__name__}")
-    return dict(spec or {})
+from arteq.config import to_plain
 
 
 def create_body(spec: nn.Module | Mapping[str, Any] | None = None, /, **kwargs: Any) -> BodyModel:
@@ -39,7 +27,10 @@ def create_body(spec: nn.Module | Mapping[str, Any] | None = None, /, **kwargs: 
         if kwargs:
             raise TypeError("create_body: config keys given together with a body module")
         return spec
-    cfg = {**_plain(spec), **kwargs}
+    spec = to_plain(spec)
+    if spec is not None and not isinstance(spec, Mapping):
+        raise TypeError(f"create_body: expected a body module or a config mapping, got {type(spec).__name__}")
+    cfg = {**dict(spec or {}), **kwargs}
     cfg.pop("_target_", None)
     if cfg.get("name") == "toy":
         from arteq.body.toy import ToyBody

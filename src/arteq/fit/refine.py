@@ -29,7 +29,7 @@ import time
 import warnings
 import weakref
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import roma
@@ -39,6 +39,7 @@ from arteq.body.lbs import skin
 from arteq.body.skeleton import NUM_JOINTS
 from arteq.geometry.normals import vertex_normals
 from arteq.geometry.pointops import fps_from_centroid
+from arteq.results import BodyFitResult
 
 
 @dataclass
@@ -70,19 +71,9 @@ class RefineConfig:
         return asdict(self)
 
 
-@dataclass
-class RefineOutput:
-    """Result of :func:`refine` (tensors batched, detached, on the input device)."""
-
-    local_rotmats: torch.Tensor  # [B, 22, 3, 3]
-    betas: torch.Tensor  # [B, nb]
-    transl: torch.Tensor  # [B, 3]
-    vertices: torch.Tensor  # [B, V, 3]
-    joints: torch.Tensor  # [B, 22, 3]
-    global_rotmats: torch.Tensor  # [B, 22, 3, 3]
-    history: list[dict[str, float]] = field(default_factory=list)
-    iterations: int = 0
-    seconds: float = 0.0
+#: The result of :func:`refine`: :class:`arteq.results.BodyFitResult` (``pose_aa`` is None), the type
+#: :func:`arteq.optim_fit.fit_body` returns too.
+RefineOutput = BodyFitResult
 
 
 class BodyTables:

@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import roma
@@ -24,25 +23,11 @@ import torch
 
 from arteq.body.skeleton import NUM_JOINTS
 from arteq.geometry.pointops import farthest_point_sample, gather, knn
+from arteq.results import BodyFitResult
 
-
-@dataclass
-class OptimFitResult:
-    """Output of :func:`fit_body` (all tensors batched, detached, on the input's device)."""
-
-    pose: torch.Tensor  # [B, 22, 3, 3] local rotmats
-    pose_aa: torch.Tensor  # [B, 22, 3] local axis-angle
-    betas: torch.Tensor  # [B, nb]
-    transl: torch.Tensor  # [B, 3]
-    vertices: torch.Tensor  # [B, V, 3]
-    joints: torch.Tensor  # [B, 22, 3]
-    global_rotmats: torch.Tensor  # [B, 22, 3, 3]
-    history: list[dict[str, float]] = field(default_factory=list)
-    iterations: int = 0
-    seconds: float = 0.0
-
-    def __getitem__(self, key: str) -> Any:  # dict-style access: result["pose"]
-        return getattr(self, key)
+#: The result of :func:`fit_body`: :class:`arteq.results.BodyFitResult` (``pose`` reads its
+#: ``local_rotmats``; ``pose_aa`` is set), the type :func:`arteq.fit.refine.refine` returns too.
+OptimFitResult = BodyFitResult
 
 
 def root_candidates(count: int, dtype=torch.float32, device=None) -> torch.Tensor:
@@ -174,8 +159,7 @@ def fit_body(
         out = body(betas=betas, pose=aa, transl=transl)
         pose = roma.rotvec_to_rotmat(aa)
     return OptimFitResult(
-        pose=pose.detach(),
-        pose_aa=aa.detach(),
+        local_rotmats=pose.detach(),
         betas=betas.detach(),
         transl=transl.detach(),
         vertices=out.vertices.detach(),
@@ -184,6 +168,7 @@ def fit_body(
         history=history,
         iterations=len(history),
         seconds=time.time() - t0,
+        pose_aa=aa.detach(),
     )
 
 
