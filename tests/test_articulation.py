@@ -186,3 +186,80 @@ def test_pose_head_gradients_stay_bounded_when_a_parts_tokens_are_alike(spread):
         assert grads[None] > 10 * grads[1e-4]
     with pytest.raises(ValueError, match="logit_eps"):
         PoseHead(8, group_rotations(torch.float64), PARENTS, logit_eps=0.0)
+
+
+def _labelled_cloud(seed=0):
+    g = torch.Generator().manual_seed(seed)
+    pts = torch.randn(2, 220, 3, generator=g, dtype=torch.float64) * torch.tensor([0.3, 0.1, 0.05])
+    labels = torch.arange(220).remainder(22).expand(2, -1)
+    return pts, torch.nn.functional.one_hot(labels, 22).double()
+
+
+def test_part_geometry_tokens_follow_a_rotation_of_the_part_and_nothing_else():
+    # Rotating only part k's points by a group element permutes part k's tokens exactly as the backbone's
+    # features are permuted; every other part's tokens and a translation of the whole cloud leave them be.
+    from arteq.models.heads import part_geometry
+
+    pts, w = _labelled_cloud()
+    rots = group_rotations(torch.float64)
+    geo = part_geometry(pts, w, rots)
+    assert geo.shape == (2, 22, 60, 16) and torch.isfinite(geo).all()
+    g = int(torch.nonzero(element_orders() == 5)[0])
+    k = JOINT_NAMES.index("left_elbow")
+    mask = w[..., k].bool()
+    moved = pts.clone()
+    pivot = torch.tensor([0.2, -0.1, 0.3], dtype=torch.float64)
+    moved[mask] = (pts[mask] - pivot) @ rots[g].T + pivot  # turned about some joint
+    geo2 = part_geometry(moved + torch.tensor([1.0, 2.0, -3.0], dtype=torch.float64), w, rots)
+    torch.testing.assert_close(geo2[:, k], rotate_group_features(geo[:, k], g, dim=1), atol=1e-10, rtol=0)
+    others = [q for q in range(22) if q != k]
+    torch.testing.assert_close(geo2[:, others], geo[:, others], atol=1e-10, rtol=0)
+    # a part with no points gets finite zeros
+    w0 = w.clone()
+    w0[..., 3] = 0
+    assert part_geometry(pts, w0, rots)[:, 3].abs().max() == 0
+
+
+def test_geometry_head_predicts_the_turned_part_exactly():
+    # End to end with ground-truth pooling, a head reading only part geometry (+ invariant parent) turns the
+    # moved part's prediction by exactly g: articulated equivariance of the pose head by construction.
+    from arteq.models.heads import part_geometry
+
+    torch.manual_seed(0)
+    head = PoseHead(4, group_rotations(torch.float64), PARENTS, dim=16, heads=4,
+                    parent_conditioning="invariant", logit_eps=1e-4, geometry=True).double()  # fmt: skip
+    torch.nn.init.normal_(head.part_embedding)
+    pts, w = _labelled_cloud(1)
+    rots = group_rotations(torch.float64)
+    feats = torch.zeros(2, 22, 60, 4, dtype=torch.float64)  # invariant (constant) backbone features
+    g = int(torch.nonzero(element_orders() == 5)[1])
+    k = JOINT_NAMES.index("right_knee")
+    moved = pts.clone()
+    moved[w[..., k].bool()] = pts[w[..., k].bool()] @ rots[g].T
+    before = head(feats, part_geometry(pts, w, rots))["rotmats"]
+    after = head(feats, part_geometry(moved, w, rots))["rotmats"]
+    torch.testing.assert_close(after[:, k], rots[g] @ before[:, k], atol=1e-8, rtol=0)
+    with pytest.raises(ValueError, match="part_geometry"):
+        head(feats)
+
+
+@pytest.mark.parametrize("pooling", ["predicted", "ground truth"])
+def test_network_with_part_geometry_stays_equivariant(pooling):
+    # The whole network with geometry tokens: rotating the cloud by a group element rotates every part's
+    # prediction by that element (float64: to rounding), with predicted and with ground-truth pooling.
+    torch.manual_seed(0)
+    net = build_net({
+        "backbone": {"channels": [4, 4], "strides": [2, 1], "radii": [0.3, 0.4], "neighbours": [8, 8],
+                     "kernel": "ico13", "normalize": True},
+        "segmenter": {"hidden": 16}, "parent_conditioning": "invariant",
+        "pose_head": {"dim": 16, "heads": 4, "mlp_hidden": 16, "logit_eps": 1e-4, "geometry": True},
+        "shape_head": {"dim": 16, "heads": 4, "mlp_hidden": 16},
+    }).double().eval()  # fmt: skip
+    pts = _cloud(120)
+    labels = torch.arange(120).remainder(22)[None] if pooling == "ground truth" else None
+    g = int(torch.nonzero(element_orders() == 3)[0])
+    r = group_rotations(torch.float64)[g]
+    with torch.no_grad():
+        out, out_rot = net(pts, labels), net(pts @ r.T, labels)
+    torch.testing.assert_close(out_rot["global_rotmats"], r @ out["global_rotmats"], atol=1e-7, rtol=0)
+    assert net.pose_head.geometry

@@ -47,6 +47,19 @@ ARMS: dict[str, list[str]] = {
         "model.net.parent_conditioning=invariant",
         "model.net.backbone.radii=[0.06,0.08,0.11,0.11]",
     ],
+    # + the part's point distribution seen from each group element in every pose-head token
+    # (pose_head.geometry, arteq.models.heads.part_geometry)
+    "local_invariant_geo": [
+        "model=arteq_local",
+        "model.net.parent_conditioning=invariant",
+        "model.net.pose_head.geometry=true",
+    ],
+    "old_geo": [
+        *OLD_BACKBONE,
+        "model.net.parent_conditioning=aligned",
+        "model.net.pose_head.logit_eps=null",
+        "model.net.pose_head.geometry=true",
+    ],
     # the old backbone with the invariant parent (isolates the backbone from the head)
     "old_invariant": [
         *OLD_BACKBONE,

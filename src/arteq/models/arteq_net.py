@@ -10,7 +10,7 @@ from torch import nn
 
 from arteq.body.skeleton import NUM_JOINTS, PARENTS, global_to_local
 from arteq.equivariant import EquivariantBackbone, group_rotations
-from arteq.models.heads import PartSegmenter, PoseHead, ShapeHead, pool_parts
+from arteq.models.heads import PartSegmenter, PoseHead, ShapeHead, part_geometry, pool_parts
 from arteq.models.precision import full_precision, upcast
 
 
@@ -89,7 +89,11 @@ class ArtEqNet(nn.Module):
         else:
             pool_weights = part_probs
         part_feats = pool_parts(feats, pool_weights)  # [B, K, A, C]
-        pose = self.pose_head(part_feats)
+        geometry = None
+        if self.pose_head.geometry:
+            with full_precision(points):
+                geometry = part_geometry(upcast(points), pool_weights, self.pose_head.group_rotations)
+        pose = self.pose_head(part_feats, geometry)
         betas = self.shape_head(part_feats.mean(dim=2))
         with full_precision(points):  # relative rotations between parts: no bfloat16 products
             local_rotmats = global_to_local(pose["rotmats"])

@@ -80,6 +80,56 @@ class GroupSelfAttention(nn.Module):
         return x + y if self.residual else y
 
 
+def part_geometry(
+    points: torch.Tensor,
+    weights: torch.Tensor,
+    group_rotations: torch.Tensor,
+    power: float = 4.0,
+    eps: float = 1e-4,
+) -> torch.Tensor:
+    """Each part's point distribution seen from the frame of every group element: ``[B, K, A, 16]``.
+
+    The part's second and third central moments (``C = E[d d^T]``, ``T = E[d (x) d (x) d]`` with
+    ``d = x - c_k`` the offset from the part's weighted centroid), rotated into the frame of element
+    ``a`` (``R_a^T C R_a`` and ``T`` contracted with ``R_a`` on each index) and made scale-free by the
+    part's spread ``tr C``: the 6 distinct entries of the rotated ``C / tr C`` and the 10 of
+    ``T / (tr C)^1.5``. The second moments give the part's principal axes, the third ones which way each
+    axis points (hand end vs elbow end), so the tokens say how the part is oriented.
+
+    Exactly what the pose head needs and nothing more: the descriptor of part k depends only on the
+    points weighted to part k (so turning a limb about its joint changes it exactly as a group rotation
+    of the limb does, whatever its neighbours do; with one-hot weights exactly), rotating the cloud by a
+    group element ``g`` permutes its tokens as the backbone's features are permuted (token ``a`` of the
+    rotated cloud is token ``b`` with ``R_b = R_g^T R_a``), and translation does not change it.
+
+    Args:
+        points: ``[B, N, 3]``; weights: ``[B, N, K]`` part membership (probabilities or one-hot), used
+            as ``w^power`` (renormalised per part) so that the small probabilities a soft segmentation
+            gives to far-away points do not swamp the part's moments; group_rotations: ``[A, 3, 3]``.
+        eps: added to ``tr C`` (m^2): a part with no mass or a single point gets finite (zero) tokens.
+    """
+    w = weights.detach().to(points.dtype).clamp_min(0) ** power  # [B, N, K]
+    w = w / (w.sum(dim=1, keepdim=True) + 1e-12)
+    centroid = torch.einsum("bnk,bnx->bkx", w, points)  # [B, K, 3]
+    d = points[:, None] - centroid[:, :, None]  # [B, K, N, 3]
+    wd = w.transpose(1, 2)[..., None] * d  # [B, K, N, 3]
+    c2 = torch.einsum("bknx,bkny->bkxy", wd, d)  # [B, K, 3, 3]
+    c3 = torch.einsum("bknx,bkny,bknz->bkxyz", wd, d, d)  # [B, K, 3, 3, 3]
+    scale = c2.diagonal(dim1=-2, dim2=-1).sum(-1) + eps  # [B, K]
+    rt = group_rotations.to(points.dtype).transpose(1, 2)  # [A, 3, 3]: R_a^T
+    c2a = torch.einsum("aix,bkxy,ajy->bkaij", rt, c2, rt)
+    c3a = torch.einsum("aix,ajy,alz,bkxyz->bkaijl", rt, rt, rt, c3)
+    iu = torch.triu_indices(3, 3)
+    second = c2a[..., iu[0], iu[1]] / scale[:, :, None, None]
+    i3 = [(i, j, k) for i in range(3) for j in range(i, 3) for k in range(j, 3)]
+    third = torch.stack([c3a[..., i, j, k] for i, j, k in i3], dim=-1) / scale[:, :, None, None] ** 1.5
+    return torch.cat([second, third], dim=-1)
+
+
+#: Channels of :func:`part_geometry` tokens.
+GEOMETRY_CHANNELS = 16
+
+
 #: How the pose head sees a part's parent (``model.net.parent_conditioning``).
 PARENT_MODES = ("invariant", "aligned", "none")
 
@@ -125,6 +175,12 @@ class PoseHead(nn.Module):
     ``None`` (the constructor default, what checkpoints made before the option hold) keeps the old
     ``std + 1e-6`` (the default config too); ``model=arteq_local`` sets ``1e-4``.
 
+    ``geometry``: with ``True`` every token also carries the part's point distribution seen from its group
+    element (:func:`part_geometry`, passed to ``forward``). Not in the paper: pooled features of a
+    part-local backbone (``model=arteq_local``) at 500 points barely say how a part is turned (a ball of
+    8 cm holds a handful of points), and its rotation loss stalled; the moments say it directly, depend
+    on the part's own points only and keep the head exactly equivariant.
+
     Why not raw weights (the authors' code): the 60 group rotations sum to zero, so raw weights that
     start out nearly equal put ``M`` near zero, where the SVD derivative (``1 / (s_i + s_j)``)
     explodes (measured here with plain softmax weights at initialisation: singular values of ``M``
@@ -151,13 +207,17 @@ class PoseHead(nn.Module):
         gradient_eps: float = 1e-3,
         part_embedding: bool = True,
         logit_eps: float | None = None,
+        geometry: bool = False,
     ):
         super().__init__()
         self.parent_mode = parent_mode(parent_conditioning)
         self.parent_conditioning = self.parent_mode != "none"
         self.register_buffer("parents", torch.tensor([max(p, 0) for p in parents]), persistent=False)
         self.register_buffer("group_rotations", group_rotations.double().clone(), persistent=False)
-        d_in = 2 * in_channels if parent_conditioning else in_channels
+        d_in = 2 * in_channels if self.parent_conditioning else in_channels
+        # part_geometry tokens appended to every token (``forward(..., geometry=...)``)
+        self.geometry = bool(geometry)
+        d_in += GEOMETRY_CHANNELS if self.geometry else 0
         self.embed = nn.Linear(d_in, dim)
         # Which part the tokens belong to: one learned vector per part, added to all 60 of its tokens
         # alike (so group permutations of the tokens commute with it: equivariance is kept). Without
@@ -177,17 +237,23 @@ class PoseHead(nn.Module):
             raise ValueError(f"PoseHead: logit_eps must be > 0 or None, got {logit_eps}")
         self.logit_eps = None if logit_eps is None else float(logit_eps)
 
-    def forward(self, part_feats: torch.Tensor) -> dict[str, torch.Tensor]:
-        """``part_feats [B, K, A, C]`` -> ``weights [B, K, A]``, ``mean [B, K, 3, 3]`` (before
-        projection) and ``rotmats [B, K, 3, 3]`` (global rotation of each part)."""
+    def forward(
+        self, part_feats: torch.Tensor, geometry: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
+        """``part_feats [B, K, A, C]`` (and, for a head built with ``geometry=True``, the
+        :func:`part_geometry` tokens ``[B, K, A, 16]``) -> ``weights [B, K, A]``, ``mean [B, K, 3, 3]``
+        (before projection) and ``rotmats [B, K, 3, 3]`` (global rotation of each part)."""
+        if self.geometry != (geometry is not None):
+            need = "needs" if self.geometry else "was built without"
+            raise ValueError(f"PoseHead {need} part_geometry tokens (geometry={self.geometry})")
         # The whole head runs in float32 at least, also under mixed precision: which of the 60 group
         # elements a part's rotation is read from depends on small differences between its 60 tokens,
         # which bfloat16 products (3 significant digits) would round away, and the attention over the
         # tokens would no longer be (near-)exactly permutation-equivariant. It is small next to the backbone.
         with full_precision(part_feats):
-            return self._forward(upcast(part_feats))
+            return self._forward(upcast(part_feats), None if geometry is None else upcast(geometry))
 
-    def _forward(self, part_feats: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _forward(self, part_feats: torch.Tensor, geometry: torch.Tensor | None) -> dict[str, torch.Tensor]:
         b, k, a, _ = part_feats.shape
         x = part_feats
         if self.parent_mode == "aligned":
@@ -195,6 +261,8 @@ class PoseHead(nn.Module):
         elif self.parent_mode == "invariant":
             inv = x[:, self.parents].mean(dim=2, keepdim=True).expand_as(x)
             x = torch.cat([x, inv], dim=-1)
+        if geometry is not None:
+            x = torch.cat([x, geometry.to(x.dtype)], dim=-1)
         x = self.embed(x)
         if self.part_embedding is not None:
             x = x + self.part_embedding[:, None, :]
