@@ -7,6 +7,11 @@
   ``test_ood_limb1`` / ``test_ood_limb2`` (an everyday pose with one / two limbs from the OOD sampler) and
   ``test_ood_contact`` (OOD poses without self-contact, PosePrior-like); ``test_splits`` chooses which
   test sets run (default all, in the order of :data:`arteq.results.TEST_SPLITS`).
+- Single-view depth scans (:mod:`arteq.data.single_view`): ``single_view.prob`` of the training clouds
+  are what one depth camera at a random position sees (default 0: full surfaces only); ``view_splits``
+  (default none) names cached single-view test sets, ``test_view_front`` / ``_side`` / ``_back`` /
+  ``_top``: the same ``test_size`` bodies as drawn for ID testing (their own stream ``test_view``, rotated
+  as ``eval_augment``), each seen from that side; loaders from :meth:`BodyScanDataModule.view_dataloaders`.
 - Fixed sets are generated once and cached under ``arteq.paths.cache_dir("datasets")``, keyed by a hash of
   everything that defines them (source, body, sizes, sampling, seed). A cache file holds plain tensors
   plus their SHA-256 and sample count (read with ``torch.load(weights_only=True)``); a file that is
@@ -59,6 +64,7 @@ from arteq.data.poses import (
     SyntheticIDPoses,
     SyntheticOODPoses,
 )
+from arteq.data.single_view import VIEW_SPLITS, SingleViewConfig, SingleViewDataset
 from arteq.geometry.pointops import fps_from_centroid
 from arteq.paths import cache_dir
 from arteq.results import TEST_SPLITS
@@ -234,6 +240,9 @@ class BodyScanDataModule(L.LightningDataModule):
             (which knows ``model.net``; see :func:`resolve_fps_points`), or from ``net`` when given; a
             datamodule built with neither takes ``auto`` as off.
         net: the network config (``model.net``) that ``fps_points: auto`` is resolved against.
+        single_view: the camera and sensor of single-view scans (:class:`arteq.data.single_view.
+            SingleViewConfig` fields; ``prob``: share of training clouds that are single-view scans).
+        view_splits: cached single-view test sets to build (:data:`arteq.data.single_view.VIEW_SPLITS`).
     """
 
     def __init__(
@@ -264,6 +273,8 @@ class BodyScanDataModule(L.LightningDataModule):
         cache_root: str | None = None,
         fps_points: int | str | None = None,
         net: Mapping[str, Any] | None = None,
+        single_view: Mapping[str, Any] | None = None,
+        view_splits: list[str] | tuple[str, ...] | None = None,
     ) -> None:
         super().__init__()
         if source not in ("synthetic", "amass"):
@@ -284,6 +295,13 @@ class BodyScanDataModule(L.LightningDataModule):
                 f"data.test_splits must be a non-empty subset of {list(TEST_SPLITS)}, got {test_splits}"
             )
         self.test_splits = tuple(t for t in TEST_SPLITS if t in test_splits)
+        view_splits = tuple(to_plain(view_splits) or ())
+        if any(v not in VIEW_SPLITS for v in view_splits):
+            raise ValueError(
+                f"data.view_splits must be a subset of {list(VIEW_SPLITS)}, got {list(view_splits)}"
+            )
+        self.view_splits = tuple(v for v in VIEW_SPLITS if v in view_splits)
+        self.single_view = SingleViewConfig.from_mapping(to_plain(single_view))
         if not 0.0 <= float(wide_poses) <= 1.0:
             raise ValueError(f"data.wide_poses is a probability in [0, 1], got {wide_poses}")
         self.wide_poses = float(wide_poses)
@@ -304,7 +322,8 @@ class BodyScanDataModule(L.LightningDataModule):
             "beta_scale": float(beta_scale),
         }
         self.augment, self.eval_augment = augment, eval_augment
-        self.sizes = {"train": train_size, "val": val_size} | {t: test_size for t in TEST_SPLITS}
+        tests = {t: test_size for t in (*TEST_SPLITS, *VIEW_SPLITS)}
+        self.sizes = {"train": train_size, "val": val_size} | tests
         self.batch_size = batch_size
         self.eval_batch_size = eval_batch_size or batch_size
         self.num_workers = num_workers
@@ -350,7 +369,7 @@ class BodyScanDataModule(L.LightningDataModule):
 
     def make_dataset(self, split: str) -> BodyScanDataset:
         """The on-the-fly dataset of a split (for the fixed splits: the generator of the cached set)."""
-        src = self._sources(split)
+        src = self._sources("test_id" if split in VIEW_SPLITS else split)
         size = self.sizes[split]
         if size is None and split in GRADED_SPLITS:
             size = GRADED_DEFAULT_SIZE
@@ -361,6 +380,17 @@ class BodyScanDataModule(L.LightningDataModule):
         augment = (
             self.augment if split == "train" else "so3" if split.startswith("test_ood") else self.eval_augment
         )
+        if split in VIEW_SPLITS:  # one stream for the bodies of every view, the camera's own per view
+            config = SingleViewConfig.from_mapping(self.single_view.to_dict() | {"prob": 1.0})
+            return SingleViewDataset(
+                src, self.body, "test_view", int(size), seed=self.seed, augment=augment, config=config,
+                view=split[len("test_view_") :], **self.sampling,
+            )  # fmt: skip
+        if split == "train" and self.single_view.prob > 0:
+            return SingleViewDataset(
+                src, self.body, split, int(size), seed=self.seed, augment=augment, config=self.single_view,
+                view="any", **self.sampling,
+            )  # fmt: skip
         return BodyScanDataset(
             src, self.body, split, int(size), seed=self.seed, augment=augment, **self.sampling
         )
@@ -377,6 +407,8 @@ class BodyScanDataModule(L.LightningDataModule):
             "source": ds.source.fingerprint(),
             "body": body_fingerprint(self.body),
         }
+        if isinstance(ds, SingleViewDataset):  # only these keys change: the other sets keep their files
+            spec["single_view"] = ds.view_spec()
         return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:20]
 
     def cache_path(self, split: str, ds: BodyScanDataset | None = None) -> Path:
@@ -412,8 +444,8 @@ class BodyScanDataModule(L.LightningDataModule):
 
     def fixed_set(self, split: str) -> TensorDictDataset:
         """Load the cached fixed set of ``split`` (``val``, ``test_id``, ``test_ood``) or generate it."""
-        if split not in EVAL_SPLITS:
-            raise ValueError(f"fixed splits are {EVAL_SPLITS}, got {split!r}")
+        if split not in EVAL_SPLITS and split not in VIEW_SPLITS:
+            raise ValueError(f"fixed splits are {EVAL_SPLITS + VIEW_SPLITS}, got {split!r}")
         ds = self.make_dataset(split)
         if not self.cache:
             self.generated.append(split)
@@ -512,6 +544,13 @@ class BodyScanDataModule(L.LightningDataModule):
             self._resume_state = None
         self.train_sampler = sampler
         return self._loader(ds, self.batch_size, sampler)
+
+    def view_dataloaders(self) -> dict[str, DataLoader]:
+        """``{split: loader}`` of the cached single-view test sets of ``view_splits`` (built on first use)."""
+        for split in self.view_splits:
+            if split not in self.datasets:
+                self.datasets[split] = self.fixed_set(split)
+        return {s: self._eval_loader(s) for s in self.view_splits}
 
     def val_dataloader(self) -> DataLoader:
         return self._eval_loader("val")

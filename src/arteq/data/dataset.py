@@ -139,13 +139,7 @@ class BodyScanDataset(Dataset):
             betas=betas[None].to(dtype), pose=rot[None].to(dtype), transl=scan_transl[None].to(dtype)
         )
         verts, grot, pelvis = out.vertices[0], out.global_rotmats[0], out.joints[0, 0]
-        faces = self.body.faces
-        g = seeded_generator(*key, "surface")
-        # density field anchored to the body's root frame: rotating the body does not move it
-        centroids = (verts[faces].mean(1) - pelvis) @ grot[0]
-        density = smooth_density_field(centroids, g, self.density_contrast, self.density_wavelength)
-        points, face_idx, bary = sample_surface(verts, faces, self.num_points, g, density, self.noise_std)
-        labels = interpolate_labels(self.body.lbs_weights, faces, face_idx, bary)
+        points, labels = self._surface_points(verts, self.body.faces, grot, pelvis, key)
         center = points.mean(0)
         return {
             "points": (points - center).float(),
@@ -156,6 +150,19 @@ class BodyScanDataset(Dataset):
             "transl": (scan_transl - center.double()).float(),
             "center": center.float(),
         }
+
+    def _surface_points(
+        self, verts: torch.Tensor, faces: torch.Tensor, grot: torch.Tensor, pelvis: torch.Tensor, key: tuple
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(points [N, 3], labels [N])`` of the posed mesh ``verts`` (``grot``: the parts' world rotations,
+        ``pelvis``: the root joint, ``key``: the sample's stream key): the full-surface sampler. Subclasses
+        draw other kinds of clouds (:class:`arteq.data.single_view.SingleViewDataset`)."""
+        g = seeded_generator(*key, "surface")
+        # density field anchored to the body's root frame: rotating the body does not move it
+        centroids = (verts[faces].mean(1) - pelvis) @ grot[0]
+        density = smooth_density_field(centroids, g, self.density_contrast, self.density_wavelength)
+        points, face_idx, bary = sample_surface(verts, faces, self.num_points, g, density, self.noise_std)
+        return points, interpolate_labels(self.body.lbs_weights, faces, face_idx, bary)
 
 
 class TensorDictDataset(Dataset):
