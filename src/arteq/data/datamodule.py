@@ -64,6 +64,7 @@ from arteq.data.poses import (
     SyntheticIDPoses,
     SyntheticOODPoses,
 )
+from arteq.data.shapes import make_shape_prior
 from arteq.data.single_view import VIEW_SPLITS, SingleViewConfig, SingleViewDataset
 from arteq.geometry.pointops import fps_from_centroid
 from arteq.paths import cache_dir
@@ -221,6 +222,10 @@ class BodyScanDataModule(L.LightningDataModule):
             sub-dataset's folder candidates.
         use_data_betas: with AMASS, use the files' betas (only correct with an SMPL body; ``null`` = auto:
             true iff the body's name starts with ``smpl``); otherwise betas ~ N(0, beta_scale^2 I).
+        shape_prior: where betas come from when the poses bring none: ``normal`` (N(0, beta_scale^2 I))
+            or ``allages`` (the all-ages body's stored shape samples, children to elderly and extreme
+            builds, perturbed with their age band's covariance: :mod:`arteq.data.shapes`; needs
+            ``body_model=anny_allages``); every split.
         num_points, noise_std, density_contrast, density_wavelength: cloud sampling.
         augment: train rotation augmentation ``none | so3 | z`` (``z``: about the vertical axis, which is
             y in the body frame); ``eval_augment`` for val / test_id; every OOD set always gets ``so3``.
@@ -258,6 +263,7 @@ class BodyScanDataModule(L.LightningDataModule):
         density_contrast: float = 0.75,
         density_wavelength: float = 0.6,
         beta_scale: float = 1.0,
+        shape_prior: str = "normal",
         augment: str = "none",
         eval_augment: str = "none",
         wide_poses: float = 0.0,
@@ -321,6 +327,12 @@ class BodyScanDataModule(L.LightningDataModule):
             "density_wavelength": float(density_wavelength),
             "beta_scale": float(beta_scale),
         }
+        # data.shape_prior: rides with the sampling arguments of every dataset, and into the fixed sets'
+        # cache keys as its fingerprint (str); the default adds nothing, so caches and streams stay as before
+        self.shape_prior = shape_prior
+        prior = make_shape_prior(shape_prior, self.body_model_cfg)
+        if prior is not None:
+            self.sampling["shapes"] = prior
         self.augment, self.eval_augment = augment, eval_augment
         tests = {t: test_size for t in (*TEST_SPLITS, *VIEW_SPLITS)}
         self.sizes = {"train": train_size, "val": val_size} | tests

@@ -66,6 +66,9 @@ class BodyScanDataset(Dataset):
         density_contrast, density_wavelength: non-uniform density field (see
             :mod:`arteq.geometry.sampling`); contrast 0 = uniform.
         beta_scale: betas ~ N(0, beta_scale^2 I) when the source gives none.
+        shapes: draw the betas from this prior instead when the source gives none (an object with
+            ``sample(num_betas, generator)``, e.g. :class:`arteq.data.shapes.StoredShapePrior`; None: the
+            normal prior).
     """
 
     def __init__(
@@ -81,6 +84,7 @@ class BodyScanDataset(Dataset):
         density_contrast: float = 0.75,
         density_wavelength: float = 0.6,
         beta_scale: float = 1.0,
+        shapes: object | None = None,
     ) -> None:
         if augment not in AUGMENTS:
             raise ValueError(f"augment must be one of {AUGMENTS}, got {augment!r}")
@@ -94,12 +98,15 @@ class BodyScanDataset(Dataset):
         self.num_points, self.noise_std, self.augment = num_points, noise_std, augment
         self.density_contrast, self.density_wavelength = density_contrast, density_wavelength
         self.beta_scale = beta_scale
+        self.shapes = shapes
 
     def __len__(self) -> int:
         return self.size
 
     def _betas(self, src_betas: torch.Tensor | None, generator: torch.Generator) -> torch.Tensor:
         nb = int(self.body.num_betas)
+        if src_betas is None and self.shapes is not None:
+            return self.shapes.sample(nb, generator)
         if src_betas is None:
             return torch.randn(nb, generator=generator, dtype=torch.float64) * self.beta_scale
         out = torch.zeros(nb, dtype=torch.float64)
