@@ -1,10 +1,19 @@
-"""Shared test settings: tiny network / run configs, config composition, body models.
+"""Shared test settings: the tiny presets, config composition, body models.
 
-The constants ``TINY_NET`` (ArtEqNet keyword arguments), ``TINY_OVERRIDES`` / ``TINY_PN2_OVERRIDES``
-(Hydra overrides) are the single place where "tiny" is defined; tests import them, with
-:func:`compose_config` and :func:`subprocess_env`, from here (``from conftest import ...``). Fixtures:
-``tiny_pn2_overrides`` (a fresh copy of the PointNet++ list), ``anny22`` and ``toy_body`` (body models
-built once per session).
+"Tiny" is defined once, in the config group the package ships: ``conf/scale/tiny.yaml`` (the run: a few
+clouds of 200 points, two steps, one epoch) and ``conf/tiny_net/<name>.yaml`` (the networks: ``arteq``,
+``arteq_micro``, ``pointnet2``). Tests take them through fixtures:
+
+* ``tiny_overrides``: the Hydra overrides selecting both (``+scale=tiny``, ``+tiny_net=arteq``);
+  ``tiny_micro_overrides`` the same with the smaller ``arteq_micro`` network; ``tiny_pn2_overrides``
+  the PointNet++ network preset alone (``+tiny_net=pointnet2``, with a config that picks PointNet++);
+* ``tiny_config``: composes ``conf/train.yaml`` (or ``eval.yaml``) with ``tiny_overrides`` and more;
+* ``tiny_net`` / ``tiny_pn2_net``: the network presets as constructor keyword arguments;
+  ``tiny_net_200`` adds the ball radii the configs give 200 points;
+* ``anny22``, ``toy_body``: body models built once per session.
+
+Module-level code can call the functions behind them (:func:`preset_overrides`, :func:`net_preset`,
+:func:`compose_config`, :func:`subprocess_env`) with ``from conftest import ...``.
 """
 
 from __future__ import annotations
@@ -31,27 +40,23 @@ def subprocess_env() -> dict[str, str]:
     return env
 
 
-#: ArtEqNet keyword arguments of a tiny network (seconds per step on a CPU).
-TINY_NET = {
-    "backbone": {"channels": [8, 8, 8, 8], "neighbours": [16, 8, 16, 8], "kernel": "ico13"},
-    "segmenter": {"hidden": 32},
-    "pose_head": {"dim": 32, "heads": 4, "mlp_hidden": 32},
-    "shape_head": {"dim": 32, "heads": 4, "mlp_hidden": 32},
-}
-#: Hydra overrides of conf/train.yaml for a tiny run (200 points, a few clouds, one epoch).
-TINY_OVERRIDES = [
-    "data.num_points=200", "data.train_size=8", "data.val_size=4", "data.test_size=4",
-    "data.batch_size=2", "data.num_workers=0", "trainer.max_epochs=1", "+trainer.limit_train_batches=2",
-    "trainer.enable_progress_bar=false", "model.net.backbone.channels=[8,8,8,8]",
-    "model.net.backbone.neighbours=[16,8,16,8]", "model.net.segmenter.hidden=32",
-    "model.net.pose_head.dim=32", "model.net.pose_head.heads=4", "model.net.pose_head.mlp_hidden=32",
-    "model.net.shape_head.dim=32", "model.net.shape_head.mlp_hidden=32", "mean_pose_baseline=false",
-]  # fmt: skip
-#: Hydra overrides shrinking the PointNet++ baseline (model=pointnet2).
-TINY_PN2_OVERRIDES = [
-    "model.net.npoints=[32,8]", "model.net.sa_channels=[[8],[16]]", "model.net.global_channels=[16]",
-    "model.net.fp_channels=[8,8]", "model.net.head_hidden=8", "model.net.seg_hidden=8",
-]  # fmt: skip
+def preset_overrides(net: str | None = "arteq") -> list[str]:
+    """Overrides selecting the tiny run (``conf/scale/tiny.yaml``) and, unless ``net`` is None, the network
+    preset ``conf/tiny_net/<net>.yaml``."""
+    return ["+scale=tiny"] + ([f"+tiny_net={net}"] if net else [])
+
+
+def net_preset(name: str = "arteq") -> dict:
+    """``conf/tiny_net/<name>.yaml`` as keyword arguments of its network (ArtEqNet, PointNet2Regressor)."""
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(OmegaConf.load(Path(CONF) / "tiny_net" / f"{name}.yaml"), resolve=True)
+
+
+#: The former constants, now read from the presets (for code written against them; tests take the fixtures).
+TINY_NET = net_preset("arteq")
+TINY_OVERRIDES = preset_overrides("arteq")
+TINY_PN2_OVERRIDES = ["+tiny_net=pointnet2"]
 
 
 def compose_config(overrides: list[str], config_name: str = "train", hydra_config: bool = True):
@@ -63,9 +68,56 @@ def compose_config(overrides: list[str], config_name: str = "train", hydra_confi
         return compose(config_name, overrides=overrides, return_hydra_config=hydra_config)
 
 
+@pytest.fixture(scope="session")
+def tiny_overrides() -> tuple[str, ...]:
+    """``("+scale=tiny", "+tiny_net=arteq")``: the run and network presets."""
+    return tuple(preset_overrides("arteq"))
+
+
+@pytest.fixture(scope="session")
+def tiny_micro_overrides() -> tuple[str, ...]:
+    """``("+scale=tiny", "+tiny_net=arteq_micro")``: the run preset with the smaller network."""
+    return tuple(preset_overrides("arteq_micro"))
+
+
+@pytest.fixture(scope="session")
+def tiny_pn2_overrides() -> tuple[str, ...]:
+    """``("+tiny_net=pointnet2",)``: the PointNet++ network preset (for configs that pick PointNet++)."""
+    return ("+tiny_net=pointnet2",)
+
+
 @pytest.fixture()
-def tiny_pn2_overrides() -> list[str]:
-    return list(TINY_PN2_OVERRIDES)
+def tiny_config():
+    """``tiny_config(*overrides, config_name="train", hydra_config=False)``: the config composed with the
+    tiny presets first, then ``overrides`` (``eval.yaml`` has no network: the run preset alone)."""
+
+    def make(*overrides: str, config_name: str = "train", hydra_config: bool = False):
+        presets = preset_overrides("arteq" if config_name == "train" else None)
+        return compose_config([*presets, *overrides], config_name, hydra_config)
+
+    return make
+
+
+@pytest.fixture(scope="session")
+def tiny_net() -> dict:
+    """The tiny ArtEq network preset as ``ArtEqNet`` keyword arguments (shared by the session: copy it
+    before changing it)."""
+    return net_preset("arteq")
+
+
+@pytest.fixture(scope="session")
+def tiny_net_200(tiny_net) -> dict:
+    """``tiny_net`` with the backbone's ball radii for 200 points, as the composed tiny config has them
+    (the paper's radii scaled by point density, conf/model/arteq.yaml)."""
+    radii = list(compose_config(preset_overrides("arteq"), hydra_config=False).model.net.backbone.radii)
+    assert radii and len(radii) == len(tiny_net["backbone"]["channels"])
+    return {**tiny_net, "backbone": {**tiny_net["backbone"], "radii": radii}}
+
+
+@pytest.fixture(scope="session")
+def tiny_pn2_net() -> dict:
+    """The tiny PointNet++ preset as ``PointNet2Regressor`` keyword arguments."""
+    return net_preset("pointnet2")
 
 
 @pytest.fixture(scope="session")

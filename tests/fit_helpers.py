@@ -6,17 +6,16 @@ from pathlib import Path
 
 import torch
 
-from conftest import TINY_NET
 
-
-def write_tiny_checkpoint(path: Path) -> Path:
-    """An untrained, weights-only checkpoint in the shipped format (network input: 500 points)."""
+def write_tiny_checkpoint(path: Path, net: dict) -> Path:
+    """An untrained, weights-only checkpoint of ``net`` (the ``tiny_net`` fixture: ArtEqNet keyword
+    arguments) in the shipped format (network input: 500 points)."""
     import lightning
 
     from arteq.training.module import ArtEqModule
 
     torch.manual_seed(0)
-    m = ArtEqModule(net=TINY_NET, body_model={"name": "anny22"}, data={"num_points": 500})
+    m = ArtEqModule(net=net, body_model={"name": "anny22"}, data={"num_points": 500})
     state = {"state_dict": m.state_dict(), "hyper_parameters": dict(m.hparams)}
     torch.save({**state, "pytorch-lightning_version": lightning.__version__}, path)
     return path

@@ -13,7 +13,7 @@ import pytest
 import scipy.sparse
 
 from arteq.training.validate import ConfigError, ConfigPathError, validate_eval_config, validate_train_config
-from conftest import TINY_OVERRIDES, compose_config
+from conftest import compose_config
 from test_amass_layouts import write_smplh_motion, write_smplh_release, write_smplx_release
 
 WRITERS = {"smplh": write_smplh_release, "smplx": write_smplx_release}
@@ -69,27 +69,23 @@ def test_bad_amass_options_name_the_key(tmp_path):
 
 
 @pytest.mark.parametrize("release", ["smplh", "smplx"])
-def test_train_stage2_then_eval_on_a_real_layout_root(tmp_path, release):
+def test_train_stage2_then_eval_on_a_real_layout_root(tmp_path, release, tiny_config):
     from arteq.eval import evaluate
     from arteq.train import train
 
     root = WRITERS[release](tmp_path / "amass")
     write_smplh_motion(root / "CMU" / "01" / "01_01_poses.npz", 20, 120.0, np.array("male"))
-    cfg = compose_config(
-        [*TINY_OVERRIDES, "+experiment=stage2", "data=amass", f"data.amass_root={root}",
-         "data.amass.datasets=[DFaust,CMU]", f"paths.output_root={tmp_path}",
-         f"paths.output_dir={tmp_path / 'run'}"],
-        hydra_config=False,
-    )  # fmt: skip
+    cfg = tiny_config("+experiment=stage2", "data=amass", f"data.amass_root={root}",
+                      "data.amass.datasets=[DFaust,CMU]", f"paths.output_root={tmp_path}",
+                      f"paths.output_dir={tmp_path / 'run'}")  # fmt: skip
     validate_train_config(cfg)
     s = train(cfg)
     assert s["stage1_init"]["how"] == "trained first in this run"
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())["metrics"]
     for split in ("test_id", "test_ood"):
         assert np.isfinite(metrics[split]["v2v_cm"]) and metrics[split]["v2v_cm"] > 0
-    ev = _eval_cfg(root, f"output_dir={tmp_path / 'ev'}", "data.num_points=200", "data.test_size=4",
-                   "data.batch_size=2", "data.num_workers=0", "trainer.enable_progress_bar=false",
-                   ckpt=s["last_ckpt"])  # fmt: skip
+    ev = tiny_config(f"ckpt_path={s['last_ckpt']}", "data=amass", f"data.amass_root={root}",
+                     f"output_dir={tmp_path / 'ev'}", config_name="eval")  # fmt: skip
     validate_eval_config(ev)
     evaluate(ev)
     assert set(json.loads((tmp_path / "ev" / "metrics.json").read_text())["metrics"]) >= {
@@ -124,17 +120,14 @@ def write_smpl_file(path: Path) -> Path:
 
 
 @pytest.mark.parametrize("release", ["smplh", "smplx"])
-def test_train_with_an_smpl_body_file(tmp_path, release):
+def test_train_with_an_smpl_body_file(tmp_path, release, tiny_config):
     from arteq.train import train
 
     root = WRITERS[release](tmp_path / "amass")
     smpl = write_smpl_file(tmp_path / "smpl" / "SMPL_NEUTRAL.pkl")
-    cfg = compose_config(
-        [*TINY_OVERRIDES, "+experiment=stage1", "data=amass", f"data.amass_root={root}", "body_model=smpl",
-         f"body_model.model_path={smpl}", f"paths.output_root={tmp_path}",
-         f"paths.output_dir={tmp_path / 'r'}"],
-        hydra_config=False,
-    )  # fmt: skip
+    cfg = tiny_config("+experiment=stage1", "data=amass", f"data.amass_root={root}", "body_model=smpl",
+                      f"body_model.model_path={smpl}", f"paths.output_root={tmp_path}",
+                      f"paths.output_dir={tmp_path / 'r'}")  # fmt: skip
     validate_train_config(cfg)
     s = train(cfg)
     assert np.isfinite(s["metrics"]["test_id"]["v2v_cm"])

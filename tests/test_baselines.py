@@ -6,22 +6,11 @@ import torch
 from arteq.body.skeleton import global_to_local
 from arteq.models.baselines import PointNet2Regressor
 
-TINY = dict(
-    npoints=(64, 16),
-    radii=(0.2, 0.4),
-    neighbours=(8, 8),
-    sa_channels=((16, 16), (32, 32)),
-    global_channels=(32, 64),
-    fp_channels=(32, 32),
-    head_hidden=32,
-    seg_hidden=32,
-)
-
 
 @pytest.fixture(scope="module")
-def net():
+def net(tiny_pn2_net):
     torch.manual_seed(0)
-    return PointNet2Regressor(num_betas=7, **TINY)
+    return PointNet2Regressor(num_betas=7, **tiny_pn2_net)
 
 
 def test_output_contract(net):
@@ -52,8 +41,8 @@ def test_gt_labels_are_pooling_weights_and_change_the_pose(net):
     assert not torch.allclose(a["global_rotmats"], b["global_rotmats"])
 
 
-def test_fewer_points_than_centres_and_gradients():
-    net = PointNet2Regressor(num_betas=3, **TINY)
+def test_fewer_points_than_centres_and_gradients(tiny_pn2_net):
+    net = PointNet2Regressor(num_betas=3, **tiny_pn2_net)
     pts = (torch.randn(1, 10, 3) * 0.3).requires_grad_(True)
     out = net(pts)
     (out["global_rotmats"].sum() + out["betas"].sum() + out["seg_logits"].sum()).backward()

@@ -136,19 +136,18 @@ def test_build_without_anny_says_what_to_install(tmp_path, monkeypatch):
         anny_allages.ensure_anny_allages(tmp_path / "anny_allages.npz")
 
 
-def test_checkpoint_records_its_body(small_allages, tmp_path):
+def test_checkpoint_records_its_body(small_allages, tmp_path, tiny_net):
     """A model trained on anny_allages reloads with anny_allages (16 betas); an anny22 one with anny22."""
     import lightning
 
     from arteq.fit.api import Fitter
     from arteq.training.module import ArtEqModule
-    from conftest import TINY_NET
 
     for spec, name, nb in (
         ({"name": "anny_allages", "model_path": str(small_allages)}, "anny_allages", 16),
         ({"name": "anny22"}, "anny22", 10),  # what every existing checkpoint records
     ):
-        m = ArtEqModule(net=TINY_NET, body_model=spec, data={"num_points": 200})
+        m = ArtEqModule(net=tiny_net, body_model=spec, data={"num_points": 200})
         path = tmp_path / f"{name}.ckpt"
         torch.save({"state_dict": m.state_dict(), "hyper_parameters": dict(m.hparams),
                     "pytorch-lightning_version": lightning.__version__}, path)  # fmt: skip

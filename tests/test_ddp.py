@@ -20,40 +20,25 @@ import torch
 from conftest import subprocess_env
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = [
-    "data.num_points=200",
-    "data.train_size=8",
-    "data.val_size=4",
-    "data.test_size=5",  # odd: a padding sampler would duplicate a sample on one rank
-    "data.batch_size=2",
-    "data.num_workers=0",
-    "trainer.max_epochs=2",
-    "trainer.enable_progress_bar=false",
-    "trainer.log_every_n_steps=1",
-    "model.net.backbone.channels=[8,8,8,8]",
-    "model.net.backbone.neighbours=[16,8,16,8]",
-    "model.net.segmenter.hidden=32",
-    "model.net.pose_head.dim=32",
-    "model.net.pose_head.heads=4",
-    "model.net.pose_head.mlp_hidden=32",
-    "model.net.shape_head.dim=32",
-    "model.net.shape_head.mlp_hidden=32",
-    "mean_pose_baseline=false",
-]
+#: Beyond the tiny presets: two epochs of every batch (the ranks' union is the epoch), every step logged,
+#: an odd test set (a padding sampler would duplicate a sample on one rank).
+DDP = ["data.test_size=5", "trainer.max_epochs=2", "~trainer.limit_train_batches",
+       "trainer.log_every_n_steps=1"]  # fmt: skip
 
 
-def _train_cmd(tmp_path: Path, *extra: str) -> list[str]:
+def _train_cmd(tmp_path: Path, tiny: tuple[str, ...], *extra: str) -> list[str]:
     return [
-        sys.executable, "-m", "arteq.train", "+experiment=stage1", *TINY,
+        sys.executable, "-m", "arteq.train", "+experiment=stage1", *tiny, *DDP,
         f"paths.output_root={tmp_path / 'out'}", f"data.cache_root={tmp_path / 'cache'}", *extra,
     ]  # fmt: skip
 
 
-def test_two_process_ddp_run(tmp_path):
+def test_two_process_ddp_run(tmp_path, tiny_overrides):
     run = tmp_path / "out" / "run"
     cmd = _train_cmd(
-        tmp_path, "trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2", f"paths.output_dir={run}",
-        f"hydra.run.dir={run}", "+callbacks.record._target_=helpers.record.RecordBatches",
+        tmp_path, tiny_overrides, "trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2",
+        f"paths.output_dir={run}", f"hydra.run.dir={run}",
+        "+callbacks.record._target_=helpers.record.RecordBatches",
     )  # fmt: skip
     proc = subprocess.run(cmd, cwd=ROOT, env=subprocess_env(), capture_output=True, text=True, timeout=600)
     out = proc.stdout + proc.stderr

@@ -4,25 +4,19 @@ dashboard: `logger=tensorboard` and several loggers at once (`logger=[csv,tensor
 from __future__ import annotations
 
 import csv
-from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 
-CONF = str(Path(__file__).resolve().parents[1] / "conf")
-TINY = [
-    "+experiment=stage1", "data.num_points=128", "data.train_size=8", "data.val_size=2", "data.test_size=3",
-    "data.batch_size=2", "trainer.max_epochs=1", "trainer.enable_progress_bar=false",
-    "trainer.log_every_n_steps=1", "model.net.backbone.channels=[4,4,4,4]",
-    "model.net.backbone.neighbours=[8,8,8,8]", "model.net.segmenter.hidden=16", "model.net.pose_head.dim=16",
-    "model.net.pose_head.heads=2", "model.net.pose_head.mlp_hidden=16", "model.net.shape_head.dim=16",
-    "model.net.shape_head.heads=2", "model.net.shape_head.mlp_hidden=16", "mean_pose_baseline=false",
-]  # fmt: skip
+from conftest import compose_config
+
+#: Beyond the tiny presets (with the micro network): 128 points, every one of the 4 steps trained and logged.
+RUN = ["+experiment=stage1", "data.num_points=128", "data.val_size=2", "data.test_size=3",
+       "~trainer.limit_train_batches", "trainer.log_every_n_steps=1"]  # fmt: skip
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory):
+def runs(tmp_path_factory, tiny_micro_overrides):
     from arteq.train import train
 
     tmp = tmp_path_factory.mktemp("det")
@@ -31,9 +25,9 @@ def runs(tmp_path_factory):
         "w2_a": ["data.num_workers=2", "logger=[csv,tensorboard]"],
         "w2_b": ["data.num_workers=2", "logger=tensorboard"],
     }.items():
-        with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-            cfg = compose("train", overrides=[*TINY, *extra, f"paths.output_dir={tmp / name}",
-                                              f"data.cache_root={tmp / 'cache'}"])  # fmt: skip
+        overrides = [*tiny_micro_overrides, *RUN, *extra, f"paths.output_dir={tmp / name}",
+                     f"data.cache_root={tmp / 'cache'}"]  # fmt: skip
+        cfg = compose_config(overrides, hydra_config=False)
         out[name] = (train(cfg), tmp / name)
     return out
 

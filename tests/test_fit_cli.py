@@ -33,8 +33,8 @@ def body(anny22):
 
 
 @pytest.fixture(scope="module")
-def tiny_ckpt(tmp_path_factory):
-    return write_tiny_checkpoint(tmp_path_factory.mktemp("ckpt") / "tiny.ckpt")
+def tiny_ckpt(tmp_path_factory, tiny_net):
+    return write_tiny_checkpoint(tmp_path_factory.mktemp("ckpt") / "tiny.ckpt", tiny_net)
 
 
 class OracleFitter(Fitter):

@@ -17,8 +17,8 @@ from fit_helpers import write_tiny_checkpoint
 
 
 @pytest.fixture(scope="module")
-def tiny_ckpt(tmp_path_factory):
-    return write_tiny_checkpoint(tmp_path_factory.mktemp("ckpt") / "tiny.ckpt")
+def tiny_ckpt(tmp_path_factory, tiny_net):
+    return write_tiny_checkpoint(tmp_path_factory.mktemp("ckpt") / "tiny.ckpt", tiny_net)
 
 
 @pytest.fixture(scope="module")

@@ -8,17 +8,11 @@ import pickle
 import pytest
 import torch
 
-from arteq.config import radii_for_points
 from arteq.data import BodyScanDataModule, FpsCollate
 from arteq.data.datamodule import resolve_fps_points
 from arteq.equivariant import EquivariantBackbone
 from arteq.models import ArtEqNet
-from conftest import TINY_NET, TINY_OVERRIDES, compose_config
-
-NET_200 = {
-    **TINY_NET,
-    "backbone": {**TINY_NET["backbone"], "radii": radii_for_points([0.08, 0.113, 0.16, 0.16], 200)},
-}
+from conftest import compose_config
 
 
 def _items(b: int, n: int, seed: int, scale: float = 1.0) -> list[dict[str, torch.Tensor]]:
@@ -58,9 +52,9 @@ def test_collate_is_picklable_and_checks_m():
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_network_outputs_bit_identical_with_batch_fps(dtype):
+def test_network_outputs_bit_identical_with_batch_fps(dtype, tiny_net_200):
     torch.manual_seed(0)
-    net = ArtEqNet(**NET_200).to(dtype).eval()
+    net = ArtEqNet(**tiny_net_200).to(dtype).eval()
     items = _items(3, 200, 1, scale=0.4)
     batch = FpsCollate(100)(items)
     with torch.no_grad():
@@ -71,12 +65,12 @@ def test_network_outputs_bit_identical_with_batch_fps(dtype):
         assert torch.equal(a[k], b[k]), k
 
 
-def test_module_step_uses_batch_fps_and_gives_identical_losses():
+def test_module_step_uses_batch_fps_and_gives_identical_losses(tiny_net_200):
     from arteq.training.module import ArtEqModule, batch_fps_idx
 
     dm = BodyScanDataModule(
         body_model={"name": "anny22"}, num_points=200, train_size=4, val_size=2, test_size=2, batch_size=2,
-        cache=False, fps_points="auto", net=NET_200,
+        cache=False, fps_points="auto", net=tiny_net_200,
     )  # fmt: skip
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
@@ -85,7 +79,7 @@ def test_module_step_uses_batch_fps_and_gives_identical_losses():
     runs = []
     for b in (batch, plain):
         torch.manual_seed(0)
-        module = ArtEqModule(net=NET_200, body_model={"name": "anny22"}, stage=2)
+        module = ArtEqModule(net=tiny_net_200, body_model={"name": "anny22"}, stage=2)
         opt = torch.optim.Adam(module.net.parameters(), lr=1e-3)
         losses = []
         for _ in range(3):  # a few optimisation steps: identical losses and weights
@@ -187,7 +181,7 @@ def test_datamodule_workers_yield_fps_idx(tmp_path):
     assert "fps_idx" not in dm.datasets["val"].tensors
 
 
-def test_training_run_identical_with_and_without_worker_fps(tmp_path, monkeypatch):
+def test_training_run_identical_with_and_without_worker_fps(tmp_path, monkeypatch, tiny_config):
     from arteq.train import train
 
     calls = []  # the network's own FPS: never run when the batches carry fps_idx
@@ -195,11 +189,14 @@ def test_training_run_identical_with_and_without_worker_fps(tmp_path, monkeypatc
     monkeypatch.setattr(EquivariantBackbone, "compute_fps", lambda self, p: calls.append(1) or own(self, p))
     metrics, own_fps = [], []
     for fps in ("auto", "null"):
-        cfg = compose_config(
-            [*TINY_OVERRIDES, f"paths.output_root={tmp_path}", "+experiment=stage1", "stage1.init=false",
-             f"paths.output_dir={tmp_path / fps}", f"data.fps_points={fps}", f"data.cache_root={tmp_path}"],
-            hydra_config=False,
-        )  # fmt: skip
+        cfg = tiny_config(
+            f"paths.output_root={tmp_path}",
+            "+experiment=stage1",
+            "stage1.init=false",
+            f"paths.output_dir={tmp_path / fps}",
+            f"data.fps_points={fps}",
+            f"data.cache_root={tmp_path}",
+        )
         calls.clear()
         metrics.append(train(cfg)["metrics"])
         own_fps.append(len(calls))

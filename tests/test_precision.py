@@ -16,22 +16,14 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 
 from arteq.equivariant import group_rotations
 from arteq.geometry.rotations import geodesic_deg
 from arteq.training.module import ArtEqModule
-from conftest import TINY_NET
 
-CONF = str(Path(__file__).resolve().parents[1] / "conf")
-TINY = [
-    "data.num_points=128", "data.val_size=2", "data.test_size=2", "data.batch_size=2", "data.num_workers=0",
-    "trainer.max_epochs=1", "trainer.enable_progress_bar=false", "trainer.log_every_n_steps=1",
-    "model.net.backbone.channels=[8,8,8,8]", "model.net.backbone.neighbours=[16,8,16,8]",
-    "model.net.segmenter.hidden=32", "model.net.pose_head.dim=32", "model.net.pose_head.heads=4",
-    "model.net.pose_head.mlp_hidden=32", "model.net.shape_head.dim=32", "model.net.shape_head.mlp_hidden=32",
-    "mean_pose_baseline=false", "trainer.precision=bf16-mixed", "model.optimizer.lr=3e-3",
-]  # fmt: skip
+#: Beyond the tiny presets: 128 points, every step logged and trained, bfloat16.
+BF16 = ["data.num_points=128", "data.val_size=2", "data.test_size=2", "~trainer.limit_train_batches",
+        "trainer.log_every_n_steps=1", "trainer.precision=bf16-mixed", "model.optimizer.lr=3e-3"]  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -67,22 +59,19 @@ def _check_bf16_bounds(err: dict[str, float]) -> None:
     assert err["rot_mean"] < 1.0 and err["rot_median"] < 0.1 and err["v2v_mm"] < 3.0, err
 
 
-def test_bf16_autocast_keeps_float32_islands_and_equivariance(clouds):
+def test_bf16_autocast_keeps_float32_islands_and_equivariance(clouds, tiny_net):
     torch.manual_seed(0)
-    module = ArtEqModule(net=TINY_NET, body_model={"name": "anny22"}, stage=2).eval()
+    module = ArtEqModule(net=tiny_net, body_model={"name": "anny22"}, stage=2).eval()
     assert equivariance_errors(module, clouds, bf16=False)["rot_max"] < 0.05
     _check_bf16_bounds(equivariance_errors(module, clouds, bf16=True))
 
 
-def _train_bf16(tmp_path: Path, steps: int) -> tuple[list[float], dict]:
+def _train_bf16(tiny_config, tmp_path: Path, steps: int) -> tuple[list[float], dict]:
     from arteq.train import train
 
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(
-            "train",
-            overrides=["+experiment=stage1", *TINY, f"data.train_size={2 * steps}",
-                       f"paths.output_dir={tmp_path / 'r'}", f"data.cache_root={tmp_path / 'cache'}"],
-        )  # fmt: skip
+    cfg = tiny_config("+experiment=stage1", *BF16, f"data.train_size={2 * steps}",
+                      f"paths.output_dir={tmp_path / 'r'}",
+                      f"data.cache_root={tmp_path / 'cache'}")  # fmt: skip
     summary = train(cfg)
     rows = list(csv.DictReader(open(tmp_path / "r" / "csv" / "metrics.csv")))
     losses = [float(r["train/loss"]) for r in rows if r.get("train/loss")]
@@ -95,13 +84,13 @@ def _train_bf16(tmp_path: Path, steps: int) -> tuple[list[float], dict]:
     return losses, summary
 
 
-def test_bf16_mixed_training_steps_are_finite(tmp_path):
-    _train_bf16(tmp_path, steps=8)
+def test_bf16_mixed_training_steps_are_finite(tmp_path, tiny_config):
+    _train_bf16(tiny_config, tmp_path, steps=8)
 
 
 @pytest.mark.slow
-def test_bf16_mixed_few_hundred_steps_train_and_stay_equivariant(tmp_path, clouds):
-    losses, summary = _train_bf16(tmp_path, steps=200)
+def test_bf16_mixed_few_hundred_steps_train_and_stay_equivariant(tmp_path, clouds, tiny_config):
+    losses, summary = _train_bf16(tiny_config, tmp_path, steps=200)
     assert sum(losses[-20:]) / 20 < 0.75 * sum(losses[:20]) / 20  # it trains, not only survives
     module = ArtEqModule.load_from_checkpoint(summary["last_ckpt"], map_location="cpu", weights_only=True)
     _check_bf16_bounds(equivariance_errors(module.eval(), clouds, bf16=True))

@@ -15,43 +15,26 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from conftest import subprocess_env
+from conftest import compose_config, subprocess_env
 
 ROOT = Path(__file__).resolve().parents[1]
 EVERY = 3  # step checkpoint interval
-TINY = [
-    "data.num_points=128",
-    "data.train_size=24",  # 12 steps per epoch
-    "data.val_size=2",
-    "data.test_size=2",
-    "data.batch_size=2",
-    "data.num_workers=1",  # the default config's loader: a worker process, prefetching
-    "trainer.max_epochs=2",
-    "trainer.enable_progress_bar=false",
-    "trainer.log_every_n_steps=1",
-    f"callbacks.step_checkpoint.every_n_train_steps={EVERY}",
-    "model.net.backbone.channels=[4,4,4,4]",
-    "model.net.backbone.neighbours=[8,8,8,8]",
-    "model.net.segmenter.hidden=16",
-    "model.net.pose_head.dim=16",
-    "model.net.pose_head.heads=2",
-    "model.net.pose_head.mlp_hidden=16",
-    "model.net.shape_head.dim=16",
-    "model.net.shape_head.heads=2",
-    "model.net.shape_head.mlp_hidden=16",
-    "mean_pose_baseline=false",
-    "test=false",
+#: Beyond the tiny presets (with the micro network): 12 steps per epoch, all trained, a checkpoint every
+#: EVERY steps, the default config's loader (a worker process, prefetching), every sample recorded.
+RUN = [
+    "+experiment=stage1", "data.num_points=128", "data.train_size=24", "data.val_size=2", "data.test_size=2",
+    "data.num_workers=1", "trainer.max_epochs=2", "~trainer.limit_train_batches",
+    "trainer.log_every_n_steps=1", f"callbacks.step_checkpoint.every_n_train_steps={EVERY}", "test=false",
     "+callbacks.record._target_=helpers.record.RecordBatches",
-]
+]  # fmt: skip
 
 
-def _cfg(tmp_path: Path, *extra: str):
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        return compose(
-            "train",
-            overrides=["+experiment=stage1", *TINY, f"paths.output_root={tmp_path / 'out'}",
-                       f"data.cache_root={tmp_path / 'cache'}", *extra],
-        )  # fmt: skip
+def _overrides(tmp_path: Path, tiny: tuple[str, ...]) -> list[str]:
+    return [*tiny, *RUN, f"paths.output_root={tmp_path / 'out'}", f"data.cache_root={tmp_path / 'cache'}"]
+
+
+def _cfg(tmp_path: Path, tiny: tuple[str, ...], *extra: str):
+    return compose_config([*_overrides(tmp_path, tiny), *extra], hydra_config=False)
 
 
 def _step(path: Path) -> int:
@@ -62,7 +45,7 @@ def _train_batches(record_file: Path) -> list[tuple[int, torch.Tensor]]:
     return torch.load(record_file, weights_only=False)["train"]
 
 
-def test_sigkill_mid_epoch_then_resume_auto(tmp_path):
+def test_sigkill_mid_epoch_then_resume_auto(tmp_path, tiny_micro_overrides):
     from arteq.train import train
 
     # Same thread count as the subprocess (subprocess_env: 1 thread): float sums in a different thread
@@ -70,20 +53,19 @@ def test_sigkill_mid_epoch_then_resume_auto(tmp_path):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        _killed_and_resumed_run_matches_uninterrupted(tmp_path, train)
+        _killed_and_resumed_run_matches_uninterrupted(tmp_path, tiny_micro_overrides, train)
     finally:
         torch.set_num_threads(threads)
 
 
-def _killed_and_resumed_run_matches_uninterrupted(tmp_path, train):
+def _killed_and_resumed_run_matches_uninterrupted(tmp_path, tiny, train):
     # reference: the uninterrupted run
-    ref = train(_cfg(tmp_path, f"paths.output_dir={tmp_path / 'ref'}"))
+    ref = train(_cfg(tmp_path, tiny, f"paths.output_dir={tmp_path / 'ref'}"))
     ref_batches = _train_batches(tmp_path / "ref" / "record_rank0.pt")
     assert len(ref_batches) == 24
 
     # the same run, killed with SIGKILL in the middle of epoch 1 right after a step checkpoint
-    cmd = [sys.executable, "-m", "arteq.train", "+experiment=stage1", *TINY,
-           f"paths.output_root={tmp_path / 'out'}", f"data.cache_root={tmp_path / 'cache'}"]  # fmt: skip
+    cmd = [sys.executable, "-m", "arteq.train", *_overrides(tmp_path, tiny)]
     proc = subprocess.Popen(
         cmd, cwd=ROOT, env=subprocess_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
     )
@@ -111,7 +93,7 @@ def _killed_and_resumed_run_matches_uninterrupted(tmp_path, train):
     # a checkpoint cut short by a kill must not be picked: a garbage file with a higher step number
     (run / "checkpoints" / "step9999999.ckpt").write_bytes(b"PK\x03\x04 truncated")
 
-    resumed = train(_cfg(tmp_path, "resume=auto", f"paths.output_dir={tmp_path / 'fresh'}"))
+    resumed = train(_cfg(tmp_path, tiny, "resume=auto", f"paths.output_dir={tmp_path / 'fresh'}"))
     assert resumed["resumed_run"] == str(run)
     start = _step(Path(resumed["resumed_from"]))
     assert start >= steps_done - EVERY, (start, steps_done)  # at most N steps lost
@@ -132,15 +114,21 @@ def _killed_and_resumed_run_matches_uninterrupted(tmp_path, train):
         )
 
 
-def test_resume_auto_without_earlier_run_starts_fresh_and_explicit_folder_needs_a_checkpoint(tmp_path):
+def test_resume_auto_without_earlier_run_starts_fresh_and_explicit_folder_needs_a_checkpoint(
+    tmp_path, tiny_micro_overrides
+):
     from arteq.train import plan_run
 
-    plan = plan_run(_cfg(tmp_path, "resume=auto", f"paths.output_dir={tmp_path / 'new'}"))
+    plan = plan_run(
+        _cfg(tmp_path, tiny_micro_overrides, "resume=auto", f"paths.output_dir={tmp_path / 'new'}")
+    )
     assert plan["resume"] == {} and plan["output_dir"] == str(tmp_path / "new")
     empty = tmp_path / "out" / "stage1" / "empty_run"
     empty.mkdir(parents=True)
     with pytest.raises(FileNotFoundError, match="no readable checkpoint"):
-        plan_run(_cfg(tmp_path, f"resume={empty}", f"paths.output_dir={tmp_path / 'new'}"))
+        plan_run(
+            _cfg(tmp_path, tiny_micro_overrides, f"resume={empty}", f"paths.output_dir={tmp_path / 'new'}")
+        )
 
 
 def test_datamodule_resume_state_picks_the_next_sample(tmp_path):

@@ -44,8 +44,8 @@ def _tiny_module(cfg):
 
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_variant_composes_and_builds(variant, tiny_pn2_overrides):
-    cfg = _compose(["+experiment=ablation_all", f"+sweep/variant={variant}"] + (
-        tiny_pn2_overrides if variant.startswith("pointnet2") else []))  # fmt: skip
+    pn2 = tiny_pn2_overrides if variant.startswith("pointnet2") else ()
+    cfg = _compose(["+experiment=ablation_all", f"+sweep/variant={variant}", *pn2])
     assert cfg.variant == variant
     expect = {"arteq_nc": ("arteq", False, "none", 500), "arteq_so3": ("arteq", "aligned", "so3", 500),
               "pointnet2": ("pointnet2", None, "none", 500), "pointnet2_so3": ("pointnet2", None, "so3", 500),
@@ -66,19 +66,17 @@ def test_baseline_experiments(tiny_pn2_overrides):
     from arteq.models.baselines import PointNet2Regressor
 
     for name, aug in (("baseline_pointnet2", "none"), ("baseline_pointnet2_aug", "so3")):
-        cfg = _compose([f"+experiment={name}"] + tiny_pn2_overrides)
+        cfg = _compose([f"+experiment={name}", *tiny_pn2_overrides])
         assert cfg.task_name == name and cfg.data.augment == aug
         assert isinstance(_tiny_module(cfg).net, PointNet2Regressor)
 
 
 @pytest.mark.slow
-def test_tiny_multirun_unique_dirs_and_report(tmp_path):
+def test_tiny_multirun_unique_dirs_and_report(tmp_path, tiny_micro_overrides):
     env = dict(os.environ, ARTEQ_OUTPUT_ROOT=str(tmp_path / "out"))
-    tiny = ["data.train_size=4", "data.val_size=2", "data.test_size=2", "data.batch_size=2",
-            "data.num_points=200", "data.num_workers=0", "trainer.max_epochs=1", "stage1.epochs=1",
-            "mean_pose_baseline=false",
-            "model.net.backbone.channels=[4,4,4,4]", "model.net.backbone.neighbours=[8,8,8,8]",
-            "trainer.enable_progress_bar=false"]  # fmt: skip
+    # the tiny presets with the micro network; fewer clouds and one stage-1 epoch: 6 jobs run here
+    tiny = [*tiny_micro_overrides, "data.train_size=4", "data.val_size=2", "data.test_size=2",
+            "stage1.epochs=1"]  # fmt: skip
     env.pop("WANDB_API_KEY", None)
     env.update(WANDB_MODE="offline", WANDB_SILENT="true", NETRC=str(tmp_path / "no-netrc"))
     cmd = [sys.executable, "-m", "arteq.train", "-m", "+experiment=ablation_nc", *tiny]

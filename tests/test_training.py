@@ -10,15 +10,10 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from arteq.config import radii_for_points
 from arteq.equivariant import element_orders, group_rotations
 from arteq.results import TEST_SPLITS
 from arteq.training.module import ArtEqModule
-from conftest import TINY_NET, TINY_OVERRIDES, compose_config
-
-# the paper's ball radii scaled to 200 points (as the configs do): the tiny clouds' neighbourhoods hold points
-RADII_200 = radii_for_points([0.08, 0.113, 0.16, 0.16], 200)
-TINY_NET_200 = {**TINY_NET, "backbone": {**TINY_NET["backbone"], "radii": RADII_200}}
+from conftest import compose_config
 
 
 @pytest.fixture(scope="module")
@@ -33,17 +28,25 @@ def tiny_batch():
     return next(iter(dm.train_dataloader()))
 
 
-def _module(stage: int = 2, **kw) -> ArtEqModule:
-    torch.manual_seed(0)
-    return ArtEqModule(net=TINY_NET_200, body_model={"name": "anny22"}, stage=stage, **kw)
+@pytest.fixture()
+def make_module(tiny_net_200):
+    """``make_module(stage=2, **kw)``: the tiny network (radii for 200 points) in a fresh module, seed 0."""
+
+    def make(stage: int = 2, **kw) -> ArtEqModule:
+        torch.manual_seed(0)
+        return ArtEqModule(net=tiny_net_200, body_model={"name": "anny22"}, stage=stage, **kw)
+
+    return make
 
 
-def _cfg(tmp_path: Path, *extra: str):
-    return compose_config([*TINY_OVERRIDES, f"paths.output_root={tmp_path}", *extra], hydra_config=False)
+@pytest.fixture()
+def run_cfg(tmp_path, tiny_config):
+    """``run_cfg(*overrides)``: the tiny run's config, writing under ``tmp_path``."""
+    return lambda *extra: tiny_config(f"paths.output_root={tmp_path}", *extra)
 
 
-def test_gradients_finite_at_initialisation(tiny_batch):
-    module = _module()
+def test_gradients_finite_at_initialisation(tiny_batch, make_module):
+    module = make_module()
     for stage_gt in (True, False):
         module.zero_grad()
         _, _, losses = module._step(tiny_batch, use_gt_parts=stage_gt)
@@ -55,8 +58,8 @@ def test_gradients_finite_at_initialisation(tiny_batch):
 
 
 @pytest.mark.parametrize("element", [int(torch.nonzero(element_orders() == o)[0]) for o in (3, 5)])
-def test_full_model_is_equivariant(tiny_batch, element):
-    module = _module().eval()
+def test_full_model_is_equivariant(tiny_batch, element, make_module):
+    module = make_module().eval()
     r = group_rotations()[element]
     pts = tiny_batch["points"]
     with torch.no_grad():
@@ -69,8 +72,8 @@ def test_full_model_is_equivariant(tiny_batch, element):
     torch.testing.assert_close(out_rot["vertices"], out["vertices"] @ r.T, atol=2e-3, rtol=0)
 
 
-def test_overfits_a_tiny_batch(tiny_batch):
-    module = _module(stage=1, optimizer={"name": "adam", "lr": 3e-3})
+def test_overfits_a_tiny_batch(tiny_batch, make_module):
+    module = make_module(stage=1, optimizer={"name": "adam", "lr": 3e-3})
     opt = torch.optim.Adam(module.net.parameters(), lr=3e-3)
     losses, rot_err = [], []
     from arteq.geometry.rotations import geodesic_deg
@@ -94,11 +97,11 @@ def test_overfits_a_tiny_batch(tiny_batch):
     assert sum(rot_err[-3:]) / 3 < 0.85 * sum(rot_err[:3]) / 3, (rot_err[:3], rot_err[-3:])
 
 
-def test_stage2_trains_stage1_first_then_finds_it(tmp_path):
+def test_stage2_trains_stage1_first_then_finds_it(tmp_path, run_cfg):
     from arteq.train import train
 
     out1 = tmp_path / "run_a"
-    s = train(_cfg(tmp_path, "+experiment=stage2", f"paths.output_dir={out1}"))
+    s = train(run_cfg("+experiment=stage2", f"paths.output_dir={out1}"))
     assert s["stage1_init"]["how"] == "trained first in this run"
     metrics = json.loads((out1 / "metrics.json").read_text())["metrics"]
     for split in ("test_id", "test_ood"):
@@ -107,22 +110,19 @@ def test_stage2_trains_stage1_first_then_finds_it(tmp_path):
     assert (out1 / "metrics.md").read_text().count("| ArtEq |") == 1
 
     # A stage-1 run of the same network is found by a later stage-2 run.
-    s1 = train(
-        _cfg(tmp_path, "+experiment=stage1", f"paths.output_dir={tmp_path / 'stage1' / 'r1'}", "test=false")
-    )
+    s1 = train(run_cfg("+experiment=stage1", f"paths.output_dir={tmp_path / 'stage1' / 'r1'}", "test=false"))
     assert Path(s1["last_ckpt"]).is_file()
-    s2 = train(_cfg(tmp_path, "+experiment=stage2", f"paths.output_dir={tmp_path / 'run_b'}", "test=false"))
+    s2 = train(run_cfg("+experiment=stage2", f"paths.output_dir={tmp_path / 'run_b'}", "test=false"))
     assert s2["stage1_init"] == {"ckpt": s1["last_ckpt"], "how": "found from a previous stage-1 run"}
     # ... but not by one trained on other data (here: with rotation augmentation)
     from arteq.train import find_stage1_checkpoint
 
-    assert find_stage1_checkpoint(_cfg(tmp_path, "+experiment=stage2", "data.augment=so3")) is None
-    assert find_stage1_checkpoint(_cfg(tmp_path, "+experiment=stage2")) == Path(s1["last_ckpt"])
+    assert find_stage1_checkpoint(run_cfg("+experiment=stage2", "data.augment=so3")) is None
+    assert find_stage1_checkpoint(run_cfg("+experiment=stage2")) == Path(s1["last_ckpt"])
 
     with pytest.raises(FileNotFoundError, match="stage1.ckpt"):
         train(
-            _cfg(
-                tmp_path,
+            run_cfg(
                 "+experiment=stage2",
                 "stage1.ckpt=/nonexistent.ckpt",
                 f"paths.output_dir={tmp_path}/c",
@@ -130,15 +130,15 @@ def test_stage2_trains_stage1_first_then_finds_it(tmp_path):
         )
 
 
-def test_resume_continues_step_count_and_checkpoints_load_weights_only(tmp_path):
+def test_resume_continues_step_count_and_checkpoints_load_weights_only(tmp_path, run_cfg):
     from arteq.train import train
 
-    s = train(_cfg(tmp_path, "+experiment=stage1", f"paths.output_dir={tmp_path / 'r'}", "test=false"))
+    s = train(run_cfg("+experiment=stage1", f"paths.output_dir={tmp_path / 'r'}", "test=false"))
     ckpt = torch.load(s["last_ckpt"], map_location="cpu", weights_only=True)
     assert ckpt["global_step"] == 2
     assert not any(k.startswith("body.") for k in ckpt["state_dict"])  # licensed model data never saved
     resumed = train(
-        _cfg(tmp_path, "+experiment=stage1", f"paths.output_dir={tmp_path / 'r'}", "test=false",
+        run_cfg("+experiment=stage1", f"paths.output_dir={tmp_path / 'r'}", "test=false",
              f"ckpt_path={s['last_ckpt']}", "trainer.max_epochs=2")
     )  # fmt: skip
     ckpt2 = torch.load(resumed["last_ckpt"], map_location="cpu", weights_only=True)
@@ -153,16 +153,12 @@ def test_resume_continues_step_count_and_checkpoints_load_weights_only(tmp_path)
     assert module.hparams.stage == 1
 
 
-def test_eval_entry_point_writes_json_and_markdown(tmp_path):
+def test_eval_entry_point_writes_json_and_markdown(tmp_path, run_cfg, tiny_config):
     from arteq.eval import evaluate
     from arteq.train import train
 
-    s = train(_cfg(tmp_path, "+experiment=stage1", f"paths.output_dir={tmp_path / 'r'}", "test=false"))
-    cfg = compose_config(
-        [f"ckpt_path={s['last_ckpt']}", f"output_dir={tmp_path / 'ev'}", "data.num_points=200",
-         "data.test_size=4", "data.batch_size=2", "data.num_workers=0", "trainer.enable_progress_bar=false"],
-        "eval", hydra_config=False,
-    )  # fmt: skip
+    s = train(run_cfg("+experiment=stage1", f"paths.output_dir={tmp_path / 'r'}", "test=false"))
+    cfg = tiny_config(f"ckpt_path={s['last_ckpt']}", f"output_dir={tmp_path / 'ev'}", config_name="eval")
     evaluate(cfg)
     out = json.loads((tmp_path / "ev" / "metrics.json").read_text())
     assert set(out["metrics"]) == set(TEST_SPLITS)  # ID, the hard OOD set and the graded OOD scale
@@ -182,11 +178,11 @@ def test_eval_entry_point_writes_json_and_markdown(tmp_path):
 
 
 @pytest.mark.parametrize("stage", [1, 2])
-def test_fast_dev_run_each_stage(tmp_path, stage):
+def test_fast_dev_run_each_stage(tmp_path, stage, run_cfg):
     from arteq.train import train
 
     s = train(
-        _cfg(tmp_path, f"+experiment=stage{stage}", "+trainer.fast_dev_run=true", "stage1.init=false",
+        run_cfg(f"+experiment=stage{stage}", "+trainer.fast_dev_run=true", "stage1.init=false",
              f"paths.output_dir={tmp_path / 'r'}")
     )  # fmt: skip
     for split in ("test_id", "test_ood"):

@@ -11,7 +11,6 @@ import torch
 
 from arteq.io.runs import checkpoint_dir
 from arteq.training import optim
-from conftest import TINY_OVERRIDES, compose_config
 
 COSINE = {"name": "cosine", "warmup_steps": 3, "min_lr_ratio": 0.05}
 COSINE_PARTIAL = {"_target_": "arteq.training.optim.warmup_cosine", "_partial_": True, "warmup_steps": 3,
@@ -84,12 +83,10 @@ def test_shipped_checkpoint_holds_the_name_form_and_builds():
     assert isinstance(sched["scheduler"], torch.optim.lr_scheduler.LambdaLR)
 
 
-def test_stage_config_sets_folders_and_epochs_in_the_yaml_only(tmp_path):
+def test_stage_config_sets_folders_and_epochs_in_the_yaml_only(tmp_path, tiny_config):
     from arteq.training.trainer import build_trainer, stage_config
 
-    cfg = compose_config(
-        [*TINY_OVERRIDES, f"paths.output_dir={tmp_path / 'run'}", "logger=tensorboard"], hydra_config=False
-    )
+    cfg = tiny_config(f"paths.output_dir={tmp_path / 'run'}", "logger=tensorboard")
     inner = stage_config(cfg, tmp_path / "run" / "stage1", max_epochs=3, resuming=True)
     assert cfg.paths.output_dir == str(tmp_path / "run") and cfg.trainer.max_epochs == 1  # not changed
     trainer = build_trainer(inner)
@@ -105,21 +102,19 @@ def test_stage_config_sets_folders_and_epochs_in_the_yaml_only(tmp_path):
 
 
 @pytest.mark.slow
-def test_name_form_checkpoint_resumes_under_a_partial_config(tmp_path):
+def test_name_form_checkpoint_resumes_under_a_partial_config(tmp_path, tiny_config):
     """A run trained with ``{name: adam}`` / ``{name: cosine}`` (what conf/model says, and every checkpoint so
     far) resumes with the optimizer and schedule written as partials: states restored, steps counted on."""
     from arteq.train import train
 
-    base = [*TINY_OVERRIDES, "+experiment=stage1", "test=false", f"paths.output_root={tmp_path}"]
-    first = train(compose_config([*base, f"paths.output_dir={tmp_path / 'a'}"], hydra_config=False))
+    base = ["+experiment=stage1", "test=false", f"paths.output_root={tmp_path}"]
+    first = train(tiny_config(*base, f"paths.output_dir={tmp_path / 'a'}"))
     partial = ["~model.optimizer.name", "+model.optimizer._target_=torch.optim.Adam",
                "+model.optimizer._partial_=true", "~model.scheduler.name",
                "+model.scheduler._target_=arteq.training.optim.warmup_cosine",
                "+model.scheduler._partial_=true", "+model.scheduler.interval=step"]  # fmt: skip
-    cfg = compose_config(
-        [*base, *partial, "trainer.max_epochs=2", f"ckpt_path={first['last_ckpt']}",
-         f"paths.output_dir={tmp_path / 'b'}"], hydra_config=False,
-    )  # fmt: skip
+    cfg = tiny_config(*base, *partial, "trainer.max_epochs=2", f"ckpt_path={first['last_ckpt']}",
+                      f"paths.output_dir={tmp_path / 'b'}")  # fmt: skip
     second = train(cfg)
     state = torch.load(second["last_ckpt"], map_location="cpu", weights_only=True)
     assert state["global_step"] == 4  # 2 steps per epoch (limit_train_batches=2), 2 epochs
