@@ -173,18 +173,23 @@ def test_data_sources_are_the_datamodules():
         assert repr(source) in str(info.value)
 
 
-PARTIAL = "+model.optimizer._partial_"
+def _by_name(key: str, value: str) -> list[str]:
+    """``model.<key>`` replaced whole by ``value``, the earlier form by name (conf/model/ writes partials)."""
+    return [f"~model.{key}", f"+model.{key}={value}"]
 
 
 @pytest.mark.parametrize(
     "overrides",
     [
-        ["model.optimizer.name=adamw", "+model.optimizer.weight_decay=0.01"],
-        ["model.scheduler.name=none"],
-        ["model.scheduler.name=step", "+model.scheduler.step_size=2"],
-        ["~model.optimizer.name", "+model.optimizer._target_=torch.optim.AdamW", f"{PARTIAL}=true"],
-        ["~model.scheduler.name", "+model.scheduler._target_=torch.optim.lr_scheduler.ExponentialLR",
-         "+model.scheduler._partial_=true", "+model.scheduler.gamma=0.9"],
+        [],  # the shipped partials
+        ["model.optimizer._target_=torch.optim.AdamW", "+model.optimizer.weight_decay=0.01"],
+        ["model.scheduler=null"],
+        ["model.scheduler._target_=torch.optim.lr_scheduler.ExponentialLR", "~model.scheduler.warmup_steps",
+         "~model.scheduler.min_lr_ratio", "+model.scheduler.gamma=0.9", "model.scheduler.interval=epoch"],
+        _by_name("optimizer", "{name:adamw,lr:0.001,weight_decay:0.01}"),
+        _by_name("scheduler", "{name:none}"),
+        _by_name("scheduler", "{name:step,step_size:2}"),
+        _by_name("optimizer", "{name: adamw, lr: 1.0e-3}"),  # as docs/training.md writes it
     ],
 )  # fmt: skip
 def test_optimizer_and_scheduler_by_name_or_partial(overrides):
@@ -194,18 +199,16 @@ def test_optimizer_and_scheduler_by_name_or_partial(overrides):
 @pytest.mark.parametrize(
     "overrides, message",
     [
-        (["model.optimizer.name=sgd"], "model.optimizer.name='sgd': allowed: adam | adamw"),
-        (["model.scheduler.name=linear"], "model.scheduler.name='linear': allowed: none | cosine | step"),
-        (["model.scheduler.name=step"], "model.scheduler.step_size=None: allowed: an integer >= 1"),
-        (["+model.optimizer._target_=torch.optim.AdamW", "+model.optimizer._partial_=true"],
+        (_by_name("optimizer", "{name:sgd,lr:0.001}"), "model.optimizer.name='sgd': allowed: adam | adamw"),
+        (_by_name("scheduler", "{name:linear}"),
+         "model.scheduler.name='linear': allowed: none | cosine | step"),
+        (_by_name("scheduler", "{name:step}"), "model.scheduler.step_size=None: allowed: an integer >= 1"),
+        (["+model.optimizer.name=adam"],
          "model.optimizer.name='adam': allowed: no name beside model.optimizer._target_"),
-        (["~model.optimizer.name", "+model.optimizer._target_=torch.optim.AdamW"],
-         "model.optimizer._partial_=None: allowed: true"),
-        (["~model.optimizer.name", "+model.optimizer._target_=torch.optim.Nope", f"{PARTIAL}=true"],
+        (["~model.optimizer._partial_"], "model.optimizer._partial_=None: allowed: true"),
+        (["model.optimizer._target_=torch.optim.Nope"],
          "model.optimizer._target_='torch.optim.Nope': allowed: an importable optimizer"),
-        (["~model.scheduler.name", "+model.scheduler._target_=torch.optim.lr_scheduler.StepLR",
-          "+model.scheduler._partial_=true", "+model.scheduler.interval=batch"],
-         "model.scheduler.interval='batch': allowed: step | epoch"),
+        (["model.scheduler.interval=batch"], "model.scheduler.interval='batch': allowed: step | epoch"),
     ],
 )  # fmt: skip
 def test_bad_optimizer_or_scheduler_names_the_key(overrides, message):

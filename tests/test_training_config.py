@@ -1,5 +1,5 @@
 """Optimisers, schedules and the trainer come from the config: Hydra partials (and the earlier ``{name: ...}``
-form, which the checkpoints trained so far hold), output folders and epochs from the YAML."""
+form, which the checkpoints trained before the partials hold), output folders and epochs from the YAML."""
 
 from __future__ import annotations
 
@@ -83,6 +83,34 @@ def test_shipped_checkpoint_holds_the_name_form_and_builds():
     assert isinstance(sched["scheduler"], torch.optim.lr_scheduler.LambdaLR)
 
 
+@pytest.mark.parametrize(
+    "overrides, opt, sched",
+    [
+        ([], {"name": "adam", "lr": 3e-3}, {"name": "cosine", "warmup_steps": 20, "min_lr_ratio": 0.05}),
+        (["model=arteq_local"], {"name": "adam", "lr": 3e-3},
+         {"name": "cosine", "warmup_steps": 20, "min_lr_ratio": 0.05}),
+        (["model=pointnet2"], {"name": "adam", "lr": 1e-3},
+         {"name": "cosine", "warmup_steps": 20, "min_lr_ratio": 0.05}),
+        (["+experiment=paper"], {"name": "adam", "lr": 1e-4}, {"name": "none"}),
+    ],
+)  # fmt: skip
+def test_configs_write_partials_that_build_what_their_name_form_built(overrides, opt, sched):
+    """conf/model/ and conf/scale/paper.yaml write the partial form; each is the partial the name form they
+    held before translates to (``opt``, ``sched``), so runs build the same optimiser and schedule."""
+    from omegaconf import OmegaConf
+
+    from conftest import compose_config
+
+    model = compose_config(["paths.output_dir=/tmp/unused", *overrides], hydra_config=False).model
+    new_opt = OmegaConf.to_container(model.optimizer, resolve=True)
+    new_sched = None if model.scheduler is None else OmegaConf.to_container(model.scheduler, resolve=True)
+    assert "name" not in new_opt and new_opt["_partial_"] is True
+    assert new_sched is None or ("name" not in new_sched and new_sched["_partial_"] is True)
+    assert optim.optimizer_config(new_opt) == optim.optimizer_config(opt)
+    assert optim.scheduler_config(new_sched) == optim.scheduler_config(sched)
+    assert _lrs(new_opt, new_sched) == _lrs(opt, sched)
+
+
 def test_stage_config_sets_folders_and_epochs_in_the_yaml_only(tmp_path, tiny_config):
     from arteq.training.trainer import build_trainer, stage_config
 
@@ -103,18 +131,20 @@ def test_stage_config_sets_folders_and_epochs_in_the_yaml_only(tmp_path, tiny_co
 
 @pytest.mark.slow
 def test_name_form_checkpoint_resumes_under_a_partial_config(tmp_path, tiny_config):
-    """A run trained with ``{name: adam}`` / ``{name: cosine}`` (what conf/model says, and every checkpoint so
-    far) resumes with the optimizer and schedule written as partials: states restored, steps counted on."""
+    """A run trained with ``{name: adam}`` / ``{name: cosine}`` (what conf/model said before the partials, and
+    every checkpoint trained before them) resumes under the shipped config, whose optimizer and schedule are
+    partials: states restored, steps counted on."""
     from arteq.train import train
 
     base = ["+experiment=stage1", "test=false", f"paths.output_root={tmp_path}"]
-    first = train(tiny_config(*base, f"paths.output_dir={tmp_path / 'a'}"))
-    partial = ["~model.optimizer.name", "+model.optimizer._target_=torch.optim.Adam",
-               "+model.optimizer._partial_=true", "~model.scheduler.name",
-               "+model.scheduler._target_=arteq.training.optim.warmup_cosine",
-               "+model.scheduler._partial_=true", "+model.scheduler.interval=step"]  # fmt: skip
-    cfg = tiny_config(*base, *partial, "trainer.max_epochs=2", f"ckpt_path={first['last_ckpt']}",
+    name_form = ["~model.optimizer", "+model.optimizer={name:adam,lr:0.003}", "~model.scheduler",
+                 "+model.scheduler={name:cosine,warmup_steps:20,min_lr_ratio:0.05}"]  # fmt: skip
+    first = train(tiny_config(*base, *name_form, f"paths.output_dir={tmp_path / 'a'}"))
+    hp = torch.load(first["last_ckpt"], map_location="cpu", weights_only=True)["hyper_parameters"]
+    assert hp["optimizer"] == {"name": "adam", "lr": 0.003} and hp["scheduler"]["name"] == "cosine"
+    cfg = tiny_config(*base, "trainer.max_epochs=2", f"ckpt_path={first['last_ckpt']}",
                       f"paths.output_dir={tmp_path / 'b'}")  # fmt: skip
+    assert cfg.model.optimizer._target_ == "torch.optim.Adam"  # the shipped config: partials
     second = train(cfg)
     state = torch.load(second["last_ckpt"], map_location="cpu", weights_only=True)
     assert state["global_step"] == 4  # 2 steps per epoch (limit_train_batches=2), 2 epochs

@@ -11,10 +11,11 @@ number of steps)::
 before the scheduler is built. A scheduler whose signature has ``total_steps`` gets the run's number of
 optimiser steps. ``scheduler: null`` trains at a constant rate.
 
-The earlier form by name (``{name: adam, lr: ...}``, ``{name: cosine, warmup_steps: ...}``), which the
-checkpoints trained so far hold in their hyper-parameters, is translated by :func:`optimizer_config` /
-:func:`scheduler_config` (:data:`OPTIMIZERS`, :data:`SCHEDULERS`), so those checkpoints load and resume
-as before.
+``conf/model/*.yaml`` write this form. The earlier form by name (``{name: adam, lr: ...}``,
+``{name: cosine, warmup_steps: ...}``), which the configs held before and the checkpoints trained with them
+hold in their hyper-parameters, is translated by :func:`optimizer_config` / :func:`scheduler_config`
+(:data:`OPTIMIZERS`, :data:`SCHEDULERS`) to the same partials, so those checkpoints load and resume as
+before.
 """
 
 from __future__ import annotations
@@ -46,8 +47,9 @@ SCHEDULERS: dict[str, tuple[str, str] | None] = {
 #: Lightning's scheduler intervals.
 INTERVALS = ("step", "epoch")
 #: ``model.optimizer`` when none is given (the hyper-parameter recorded by :class:`ArtEqModule`).
-DEFAULT_OPTIMIZER = {"name": "adam", "lr": 1e-4}
-#: ``model.scheduler`` when none is given.
+DEFAULT_OPTIMIZER = {"_target_": "torch.optim.Adam", "_partial_": True, "lr": 1e-4}
+#: ``model.scheduler`` when none is given: a constant rate (``{name: none}``, what modules record for a
+#: ``scheduler: null`` config).
 DEFAULT_SCHEDULER = {"name": "none"}
 
 
