@@ -3,7 +3,8 @@
 A scan's path: ``arteq.io.scans`` reads it -> units to metres, clutter removal (``arteq.fit.clean``:
 floors and walls, stray points, separate objects), size check, centring (float64) ->
 resampling to the network's point count -> the ArtEq network (parts, rotations, shape; translation by
-centroids) -> optional refinement (``arteq.fit.refine``) -> quality check
+centroids) -> scan mode (full, or partial: one depth camera's view, detected or given; ``arteq.fit.partial``)
+-> optional refinement (``arteq.fit.refine``) -> quality check
 (``arteq.fit.quality``) -> everything mapped back to the scan's own frame and units.
 
     from arteq.fit import fit_points, fit_files
@@ -34,6 +35,10 @@ from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_
 STATUSES = ("ok", "uncertain", "not_single_body", "refused", "error", "skipped")
 #: Statuses whose outputs are written.
 WRITTEN_STATUSES = ("ok", "uncertain")
+#: A part is *seen* when at least this share of the fitted points is predicted on it...
+MIN_PART_SHARE = 0.002
+#: ... and at least this many points.
+MIN_PART_POINTS = 10
 
 
 @dataclass
@@ -51,6 +56,11 @@ class FitResult:
     1 plane, 2 outlier, 3 separate cluster; -1 NaN). ``clean``: the :class:`CleanResult` (or None).
     ``quality``: :func:`arteq.fit.quality.fit_quality` values; ``uncertain_reason``: why the check
     doubts the fit (status ``uncertain`` or ``refused``; empty otherwise); ``timings`` in seconds.
+    ``scan_mode``: ``full`` or ``partial`` (one camera's view), ``scan_mode_reason`` how it was chosen,
+    ``view_dir [3]`` the direction from the body toward the camera (partial scans), ``one_sidedness`` the
+    score of :func:`arteq.fit.partial.one_sidedness`; ``part_points [22]`` the fitted points (``points``)
+    predicted on each part, ``parts_seen [22]`` whether that is enough to call the part seen
+    (:data:`MIN_PART_SHARE` of the points, at least :data:`MIN_PART_POINTS`).
     """
 
     name: str
@@ -83,6 +93,20 @@ class FitResult:
     checkpoint: str = ""
     refined: bool = False
     warnings: list[str] = field(default_factory=list)
+    scan_mode: str = "full"
+    scan_mode_reason: str = ""
+    view_dir: np.ndarray | None = None
+    one_sidedness: float | None = None
+    part_points: np.ndarray | None = None
+    parts_seen: np.ndarray | None = None
+
+    def seen_names(self, seen: bool = True) -> list[str]:
+        """Names of the parts seen (or, ``seen=False``, not seen) in the scan."""
+        from arteq.body.skeleton import JOINT_NAMES
+
+        if self.parts_seen is None:
+            return []
+        return [n for n, s in zip(JOINT_NAMES, self.parts_seen) if bool(s) == seen]
 
     @property
     def ok(self) -> bool:
@@ -128,6 +152,12 @@ class FitResult:
             "status": np.str_(self.status),
             "uncertain_reason": np.str_(self.uncertain_reason),
             "quality_flags": np.str_(" ".join(self.quality.get("flags", []))),
+            "scan_mode": np.str_(self.scan_mode),
+            "scan_mode_reason": np.str_(self.scan_mode_reason),
+            "view_dir": np.asarray(self.view_dir if self.view_dir is not None else np.full(3, np.nan)),
+            "one_sidedness": np.float64(np.nan if self.one_sidedness is None else self.one_sidedness),
+            "part_points": self.part_points,
+            "parts_seen": self.parts_seen,
             **clutter,
             **npz_arrays(self.anny),
             **{k: np.asarray(v, dtype=np.float64) for k, v in q.items()},
@@ -148,6 +178,11 @@ class FitResult:
             "body_model": self.body_model,
             "checkpoint": self.checkpoint,
             "refined": self.refined,
+            "scan_mode": self.scan_mode,
+            "scan_mode_reason": self.scan_mode_reason,
+            "view_dir": [round(float(x), 4) for x in self.view_dir] if self.view_dir is not None else None,
+            "parts_seen": self.seen_names(True),
+            "parts_unseen": self.seen_names(False),
             "betas": [round(float(b), 4) for b in self.betas] if self.betas is not None else None,
             "quality": q,
             "clutter_removed": self.clean.counts if self.clean is not None else None,
@@ -171,6 +206,9 @@ class FitResult:
             "max_abs_beta": q.get("max_abs_beta"),
             "extent_m": q.get("extent_m"),
             "flags": " ".join(q.get("flags", [])),
+            "scan_mode": self.scan_mode,
+            "parts_seen": int(self.parts_seen.sum()) if self.parts_seen is not None else None,
+            "parts_unseen": " ".join(self.seen_names(False)),
             **{
                 f"removed_{k}": (self.clean.counts[k] if self.clean is not None else None)
                 for k in ("plane", "outlier", "cluster")
@@ -305,6 +343,12 @@ class Fitter:
             every fit is ``ok`` and a failed check is a warning only.
         strict: refuse uncertain fits too (status ``refused``, nothing written).
         seed: resampling seed (each scan is resampled with it: results do not depend on batching).
+        partial: ``None`` (default): detect one-sided scans (:mod:`arteq.fit.partial`); ``True``: treat
+            every scan as one camera's view (the direction estimated unless ``view_dir`` or the file gives
+            it); ``False``: every scan is a full surface. A partial scan is placed by
+            :func:`arteq.models.placement.align_translation` and refined with the model -> scan term on
+            the vertices its camera sees.
+        view_dir: ``[3]`` direction from the body toward the camera, in the scans' frame (implies partial).
     """
 
     def __init__(
@@ -321,8 +365,19 @@ class Fitter:
         clean_config: CleanConfig | None = None,
         anny: bool | None = None,
         strict: bool = False,
+        partial: bool | None = None,
+        view_dir: np.ndarray | list[float] | None = None,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
+
+        if view_dir is not None:
+            view_dir = np.asarray(view_dir, dtype=np.float64).reshape(-1)
+            if view_dir.shape != (3,) or not np.isfinite(view_dir).all() or not np.linalg.norm(view_dir) > 0:
+                raise ValueError(f"view_dir must be 3 finite numbers, not all 0, got {view_dir.tolist()}")
+            view_dir = view_dir / np.linalg.norm(view_dir)
+            if partial is False:
+                raise ValueError("view_dir is for partial scans: it cannot go with partial=False")
+        self.partial, self.view_dir = partial, view_dir
 
         if points < MIN_POINTS:
             raise ValueError(f"points must be >= {MIN_POINTS}, got {points}")
@@ -367,8 +422,11 @@ class Fitter:
                 self.anny_note = f"off: {exc}"
 
     # ------------------------------------------------------------------ core (metres)
-    def prepare(self, points: np.ndarray, units: str = "m", name: str = "points") -> dict[str, Any]:
-        """Validate one cloud and convert it to metres; raises :class:`ScanError` naming ``name``."""
+    def prepare(
+        self, points: np.ndarray, units: str = "m", name: str = "points", viewpoint: np.ndarray | None = None
+    ) -> dict[str, Any]:
+        """Validate one cloud and convert it to metres; raises :class:`ScanError` naming ``name``.
+        ``viewpoint``: the camera's position (``units``, the cloud's frame) when the file gives it."""
         if units not in UNITS:
             raise ValueError(f"units must be one of {sorted(UNITS)}, got {units!r}")
         pts = np.asarray(points, dtype=np.float64)
@@ -408,7 +466,9 @@ class Fitter:
         center = body_m.mean(0)
         return {"name": name, "centred": body_m - center, "center": center, "keep": clutter == 0,
                 "finite": keep, "finite_centred": metres - center, "clutter": clutter, "clean": cleaned,
-                "clean_seconds": t_clean, "scale": scale, "units": units, "warnings": warnings}  # fmt: skip
+                "clean_seconds": t_clean, "scale": scale, "units": units, "warnings": warnings,
+                "viewpoint": None if viewpoint is None else np.asarray(viewpoint, float) * scale - center,
+                }  # fmt: skip
 
     @torch.no_grad()
     def _network(self, clouds: list[np.ndarray]) -> dict[str, torch.Tensor]:
@@ -435,6 +495,7 @@ class Fitter:
         trees = [cKDTree(p) for p in net_in]
         probs_ref = np.stack([probs_net[i][trees[i].query(ref_in[i])[1]] for i in range(len(items))])
         init = {"local_rotmats": pred["local_rotmats"], "betas": pred["betas"], "transl": pred["transl"]}
+        modes = self._scan_modes(items, net_in, ref_in, pred, init)
         t1 = time.perf_counter()
         dtype = self.body.v_template.dtype
         if self.refine:
@@ -464,9 +525,14 @@ class Fitter:
         )
         per_scan_net, per_scan_ref = t_net / len(items), t_ref / len(items)
         results = []
+        counts = [np.bincount(p.argmax(-1), minlength=probs_ref.shape[-1]) for p in probs_ref]
         for i, it in enumerate(items):
             t2 = time.perf_counter()
-            q = fit_quality(ref_in[i], verts[i], self.vertex_parts, self.subset, betas[i], probs_ref[i],
+            mode = modes[i]
+            subset = self.subset
+            if mode["partial"]:  # coverage of what the camera could see
+                subset = subset[self._visible(verts[i], mode)[subset]]
+            q = fit_quality(ref_in[i], verts[i], self.vertex_parts, subset, betas[i], probs_ref[i],
                             self.thresholds)  # fmt: skip
             cleaned = it.get("clean")
             if cleaned is not None and "second_body" in cleaned.flags:
@@ -538,6 +604,12 @@ class Fitter:
                     checkpoint=self.checkpoint_id,
                     refined=self.refine,
                     warnings=warnings,
+                    scan_mode="partial" if mode["partial"] else "full",
+                    scan_mode_reason=mode["reason"],
+                    view_dir=mode["view_dir"],
+                    one_sidedness=mode["score"],
+                    part_points=counts[i],
+                    parts_seen=counts[i] >= max(MIN_PART_POINTS, MIN_PART_SHARE * self.points),
                 )
             )
         for i, r in enumerate(results):
@@ -553,6 +625,62 @@ class Fitter:
                     r.anny_note = f"failed: {type(exc).__name__}: {exc}"
                     r.warnings.append(f"Anny export {r.anny_note}")
         return results
+
+    def _scan_modes(
+        self, items: list[dict[str, Any]], net_in: list[np.ndarray], ref_in: list[np.ndarray],
+        pred: dict[str, torch.Tensor], init: dict[str, torch.Tensor],
+    ) -> list[dict[str, Any]]:  # fmt: skip
+        """Full or partial, and why, per scan (see the class docstring); a partial scan's translation in
+        ``init`` is replaced by :func:`arteq.models.placement.align_translation`'s."""
+        from arteq.fit.partial import PARTIAL_SCORE, one_sidedness
+        from arteq.models.placement import align_translation
+
+        modes = []
+        for i, it in enumerate(items):
+            # a fixed point count: the score depends on the density
+            score, estimate = one_sidedness(resample(it["centred"], 4000, np.random.default_rng(self.seed)))
+            m = {"partial": True, "view_dir": None, "camera": None, "score": score}
+            viewpoint = it.get("viewpoint")
+            if self.partial is False:
+                m.update(partial=False, reason="full (--no-partial)")
+            elif viewpoint is not None:
+                d = viewpoint - ref_in[i].mean(0)
+                d = d / np.linalg.norm(d)
+                m.update(camera=viewpoint, view_dir=d, reason="partial (the file's camera)")
+            elif self.view_dir is not None:
+                m.update(view_dir=self.view_dir, reason="partial (--view-dir)")
+            elif self.partial:
+                m.update(view_dir=estimate, reason="partial (--partial; camera direction estimated)")
+            elif score > PARTIAL_SCORE:
+                why = f"partial (detected: one-sidedness {score:.2f} > {PARTIAL_SCORE})"
+                m.update(view_dir=estimate, reason=why)
+            else:
+                why = f"full (detected: one-sidedness {score:.2f} <= {PARTIAL_SCORE})"
+                m.update(partial=False, reason=why)
+            modes.append(m)
+        rows = [i for i, m in enumerate(modes) if m["partial"]]
+        if rows:
+            dtype = self.body.v_template.dtype
+            with torch.no_grad():  # the predicted body before translation
+                betas, local = init["betas"][rows].to(dtype), init["local_rotmats"][rows].to(dtype)
+                verts0 = self.body(betas=betas, pose=local).vertices
+            x = torch.as_tensor(np.stack([net_in[i] for i in rows]), dtype=dtype, device=self.device)
+            t = align_translation(verts0, self.body.part_labels, x, pred["part_probs"][rows],
+                                  init["transl"][rows])  # fmt: skip
+            init["transl"] = init["transl"].clone()
+            init["transl"][rows] = t.to(init["transl"].dtype)
+        return modes
+
+    def _visible(self, vertices: np.ndarray, mode: dict[str, Any]) -> np.ndarray:
+        """``[V]`` bool: the vertices of a fitted body (centred metres) its scan's camera sees."""
+        from arteq.fit.partial import visible_vertices
+        from arteq.geometry.normals import vertex_normals
+
+        v = torch.as_tensor(vertices, dtype=torch.float64)[None]
+        normals = vertex_normals(v, self.body.faces.cpu()).numpy()[0]
+        if mode["camera"] is not None:
+            return visible_vertices(vertices, normals, camera=mode["camera"])
+        return visible_vertices(vertices, normals, direction=mode["view_dir"])
 
     def fit_points(self, points: np.ndarray, units: str = "m", name: str = "points") -> FitResult:
         """Fit one cloud ``[N, 3]`` (in ``units``); bad input gives a result with status ``error``."""

@@ -16,7 +16,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="arteq-fit",
         description="Fit the body model to point clouds or meshes "
-        "(.ply .obj .off .stl .glb .xyz .txt .npy .npz).",
+        "(.ply .obj .off .stl .glb .xyz .txt .npy .npz) or depth images (16-bit .png in mm, .npy in m).",
         epilog="Try it: python -m arteq.fit.demo --out demo && arteq-fit demo/scans --out demo/fits",
     )
     ap.add_argument("inputs", nargs="+", metavar="INPUT", help="scan files, folders (recursive) or globs")
@@ -41,6 +41,19 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--anny", action=argparse.BooleanOptionalAction, default=None,
                     help="Anny phenotype, pose and body measurements per fit (default: when the anny "
                     "package is installed and the body is an Anny body; --anny: required)")  # fmt: skip
+    ap.add_argument("--partial", action=argparse.BooleanOptionalAction, default=None,
+                    help="scans are one camera's view (--partial) or full surfaces (--no-partial); default: "
+                    "detected per scan, a depth image is partial")  # fmt: skip
+    ap.add_argument("--view-dir", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                    help="from the body toward the camera, scan frame (implies --partial)")  # fmt: skip
+    depth = ap.add_argument_group("depth images (else from <name>.json or intrinsics.json beside each image)")
+    for k in ("fx", "fy", "cx", "cy"):
+        depth.add_argument(f"--{k}", type=float, default=None, help=f"camera intrinsics: {k} in pixels")
+    depth.add_argument("--depth-scale", type=float, default=None,
+                       help="metres per unit of a 16-bit PNG (default 0.001: millimetres)")  # fmt: skip
+    depth.add_argument("--depth-range", type=float, nargs=2, default=None, metavar=("NEAR", "FAR"),
+                       help="the person's depth band in metres (default: 1 m either side of the median depth "
+                       "of the image's central third)")  # fmt: skip
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None, help="progress bar")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     return ap
@@ -57,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     import torch  # heavy imports only after the arguments are known good
 
     from arteq.fit.api import Fitter
+    from arteq.fit.depth import DepthOptions
     from arteq.fit.files import fit_files
     from arteq.fit.refine import RefineConfig
 
@@ -68,13 +82,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         fitter = Fitter(ckpt=args.ckpt, device=args.device, refine=args.refine, points=args.points,
                         refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny,
-                        strict=args.strict)  # fmt: skip
+                        strict=args.strict, partial=args.partial, view_dir=args.view_dir)  # fmt: skip
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"arteq-fit: {exc}", file=sys.stderr)
         return 2
     summary = fit_files(
         args.inputs, args.out, fitter=fitter, units=args.units, key=args.key, preview=args.preview,
         overwrite=args.overwrite, batch_size=args.batch_size, progress=args.progress,
+        depth=DepthOptions(intrinsics={k: getattr(args, k) for k in ("fx", "fy", "cx", "cy")},
+                           depth_scale=args.depth_scale, depth_range_m=args.depth_range),
     )  # fmt: skip
     print(summary.line())
     return 1 if summary.failed else 0

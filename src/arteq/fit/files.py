@@ -3,6 +3,11 @@
 Per fitted scan ``<name>.obj`` / ``<name>.npz`` / ``<name>.json`` / ``<name>.png`` (written together and
 atomically: all appear or none), and for the run ``summary.json`` / ``summary.csv`` (rewritten after each
 batch). An input that fails gets a status and one message line; the batch goes on.
+
+Depth images (a 16-bit PNG in millimetres, a ``[H, W]`` ``.npy`` in metres) are read by
+:mod:`arteq.fit.depth` with their intrinsics (``depth=DepthOptions(...)`` or a JSON beside each image) into
+the person's points in the camera frame, in metres whatever ``units`` says, with the camera as viewpoint;
+folders given as inputs contribute their 16-bit grayscale PNGs too.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from arteq.fit.api import WRITTEN_STATUSES, FitResult, Fitter
+from arteq.fit.depth import DepthOptions, depth_files_in, is_depth_file, read_depth
 from arteq.io.fits import (
     AtomicFiles,
     csv_bytes,
@@ -31,7 +37,8 @@ FAILED_STATUSES = ("error", "not_single_body", "refused")
 
 SUMMARY_COLUMNS = [
     "input", "name", "status", "message", "uncertain_reason", "inlier_frac", "rmse_in_cm", "mean_dist_cm",
-    "coverage", "label_agree", "parts_covered", "max_abs_beta", "extent_m", "flags", "removed_plane",
+    "coverage", "label_agree", "parts_covered", "max_abs_beta", "extent_m", "flags", "scan_mode",
+    "parts_seen", "parts_unseen", "removed_plane",
     "removed_outlier", "removed_cluster", "stature_cm", "waist_cm", "mass_kg", "bmi", "age_years",
     "anny_rebuild_mm", "seconds", "anny_seconds",
 ]  # fmt: skip
@@ -111,6 +118,34 @@ def _unique_names(files: list[Path]) -> list[str]:
     return names
 
 
+def expand_scan_inputs(inputs: list[str | Path]) -> tuple[list[Path], list[tuple[str, str]]]:
+    """:func:`arteq.io.scans.expand_inputs` plus the depth PNGs of folder inputs (:func:`depth_files_in`);
+    a folder that holds only depth images is not a problem."""
+    files, problems = expand_inputs(list(inputs))
+    for item in inputs:
+        p = Path(str(item)).expanduser()
+        if p.is_dir():
+            found = depth_files_in(p)
+            if found:
+                files.extend(found)
+                problems = [pr for pr in problems if pr[0] != str(item)]
+    seen: set[Path] = set()
+    unique = []
+    for f in files:
+        if f.resolve() not in seen:
+            seen.add(f.resolve())
+            unique.append(f)
+    return unique, problems
+
+
+def read_input(path: Path, key: str | None, mesh_samples: int, depth: DepthOptions | None):
+    """A scan file's points: a depth image through :func:`arteq.fit.depth.read_depth`, anything else
+    through :func:`arteq.io.scans.read_scan`."""
+    if is_depth_file(path):
+        return read_depth(path, depth)
+    return read_scan(path, key=key, mesh_samples=mesh_samples)
+
+
 def fit_files(
     inputs: list[str | Path],
     out_dir: str | Path,
@@ -122,12 +157,14 @@ def fit_files(
     batch_size: int = 4,
     progress: bool | None = None,
     log: Callable[[str], None] | None = None,
+    depth: DepthOptions | None = None,
     **fitter_kwargs: Any,
 ) -> RunSummary:
     """Fit every scan named by ``inputs`` (files, folders searched recursively, globs) into ``out_dir``.
 
     ``fitter``: a loaded :class:`Fitter` (else one is built from ``fitter_kwargs``: ``ckpt``, ``device``,
     ``refine``, ``points``, ``check``...). ``log`` receives one line per failed input (default: stderr).
+    ``depth``: how depth images are read (:class:`arteq.fit.depth.DepthOptions`: intrinsics, depth range).
     Returns a :class:`RunSummary`; ``summary.failed`` > 0 means some input failed.
     """
     t0 = time.perf_counter()
@@ -136,7 +173,7 @@ def fit_files(
     remove_stale_tmp(out)
     log = log or (lambda msg: print(msg, file=sys.stderr))
     summary = RunSummary(out_dir=out)
-    files, problems = expand_inputs(list(inputs))
+    files, problems = expand_scan_inputs(list(inputs))
     for text, msg in problems:
         summary.rows.append({"input": text, "name": "", "status": "error", "message": msg})
         log(msg)
@@ -175,8 +212,11 @@ def fit_files(
         for f, name in chunk:
             row = {"input": str(f), "name": name}
             try:
-                scan = read_scan(f, key=key, mesh_samples=max(20000, fitter.points))
-                item = fitter.prepare(scan.points, units=units, name=str(f))
+                scan = read_input(f, key, max(20000, fitter.points), depth)
+                if scan.kind == "depth":  # metres in the camera frame, the camera at the origin
+                    item = fitter.prepare(scan.points, units="m", name=str(f), viewpoint=scan.viewpoint)
+                else:
+                    item = fitter.prepare(scan.points, units=units, name=str(f))
                 item["out_name"] = name
                 prepared.append(item)
                 rows.append(row)

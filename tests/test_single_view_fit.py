@@ -1,0 +1,98 @@
+"""Fitting single-view scans (arteq.fit.partial and the fitter's scan modes): one-sidedness, visibility,
+which mode a scan is fitted in and why, which parts were seen."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from arteq.data.dataset import BodyScanDataset
+from arteq.data.poses import SyntheticIDPoses
+from arteq.data.single_view import SingleViewDataset
+from arteq.fit.partial import PARTIAL_SCORE, one_sidedness, visible_vertices
+
+
+def test_one_sidedness_tells_a_single_view_from_a_full_surface(anny22):
+    kw = {"num_points": 4000, "augment": "so3", "seed": 7}
+    full = BodyScanDataset(SyntheticIDPoses(), anny22, "test_view", 3, **kw)
+    for i in range(3):
+        score, _ = one_sidedness(full[i]["points"].double().numpy())
+        assert score < PARTIAL_SCORE - 0.03, score
+    for view in ("front", "top"):
+        ds = SingleViewDataset(SyntheticIDPoses(), anny22, "test_view", 2, view=view, **kw)
+        for i in range(2):
+            score, direction = one_sidedness(ds[i]["points"].double().numpy())
+            assert score > PARTIAL_SCORE + 0.03, (view, score)
+            assert abs(np.linalg.norm(direction) - 1) < 1e-9
+
+
+def test_the_estimated_camera_direction_and_the_visible_vertices(anny22):
+    from arteq.data.dataset import seeded_generator
+    from arteq.data.single_view import single_view_scan
+    from arteq.geometry.normals import vertex_normals
+
+    out = anny22(betas=torch.zeros(1, 10), pose=torch.eye(3).expand(1, 22, 3, 3))
+    v = out.vertices[0].double()
+    scan = single_view_scan(v, anny22.faces, anny22.lbs_weights, out.joints[0, 0], torch.eye(3), 4000,
+                            seeded_generator(2), view="front")  # fmt: skip
+    _, direction = one_sidedness(scan["points"].numpy())
+    to_cam = (scan["camera"] - out.joints[0, 0]).double().numpy()
+    cos = direction @ to_cam / np.linalg.norm(to_cam)
+    assert cos > 0.9, cos  # the best of 100 directions (about 20 degrees apart)
+    normals = vertex_normals(v[None], anny22.faces)[0].numpy()
+    vis = visible_vertices(v.numpy(), normals, camera=scan["camera"].numpy())
+    vis_far = visible_vertices(v.numpy(), normals, direction=to_cam)
+    assert 0.25 < vis.mean() < 0.6 and 0.25 < vis_far.mean() < 0.6
+    assert (vis & vis_far).sum() > 0.8 * vis.sum()
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(scan["points"].numpy()).query(v.numpy())
+    assert np.median(d[vis]) < 0.02 < np.median(d[~vis])  # what it calls visible is what the camera saw
+    with pytest.raises(ValueError, match="exactly one"):
+        visible_vertices(v.numpy(), normals)
+
+
+@pytest.fixture(scope="module")
+def tiny_fitter(tmp_path_factory):
+    from omegaconf import OmegaConf
+
+    from arteq.fit.api import Fitter
+    from conftest import compose_config
+    from fit_helpers import write_tiny_checkpoint
+    from test_single_view_parts import TINY
+
+    net = OmegaConf.to_container(compose_config(["model=arteq", *TINY]).model.net, resolve=True)
+    ckpt = write_tiny_checkpoint(tmp_path_factory.mktemp("ckpt") / "tiny.ckpt", net)
+    return lambda **kw: Fitter(ckpt=ckpt, device="cpu", check=False, anny=False, points=1000,
+                               refine=False, **kw)  # fmt: skip
+
+
+def test_the_fit_says_which_mode_it_used_and_which_parts_it_saw(anny22, tiny_fitter):
+    kw = {"num_points": 3000, "augment": "so3", "seed": 1}
+    full = BodyScanDataset(SyntheticIDPoses(), anny22, "test_view", 1, **kw)[0]["points"].numpy()
+    side = SingleViewDataset(SyntheticIDPoses(), anny22, "test_view", 1, view="side", **kw)[0][
+        "points"
+    ].numpy()
+    auto = tiny_fitter()
+    r_full, r_side = auto.fit_points(full), auto.fit_points(side)
+    assert r_full.scan_mode == "full" and r_full.scan_mode_reason.startswith("full (detected: one-sidedness")
+    assert r_side.scan_mode == "partial" and r_side.scan_mode_reason.startswith("partial (detected")
+    assert r_side.view_dir is not None and r_full.view_dir is None
+    for r in (r_full, r_side):
+        assert r.part_points.sum() == 1000 and r.parts_seen.dtype == bool
+        assert (
+            r.parts_seen.sum() == len(r.seen_names()) and len(r.seen_names(False)) == 22 - r.parts_seen.sum()
+        )
+        assert r.summary_row()["parts_seen"] == int(r.parts_seen.sum())
+        assert r.arrays()["scan_mode"] == r.scan_mode
+    assert tiny_fitter(partial=False).fit_points(side).scan_mode_reason == "full (--no-partial)"
+    forced = tiny_fitter(partial=True).fit_points(full)
+    assert forced.scan_mode == "partial" and "--partial" in forced.scan_mode_reason
+    given = tiny_fitter(view_dir=[0, 0, 2]).fit_points(side)
+    assert given.scan_mode_reason == "partial (--view-dir)"
+    np.testing.assert_allclose(given.view_dir, [0, 0, 1])
+    with pytest.raises(ValueError, match="view_dir"):
+        tiny_fitter(view_dir=[0, 0, 0])
+    with pytest.raises(ValueError, match="partial=False"):
+        tiny_fitter(view_dir=[0, 0, 1], partial=False)
