@@ -138,3 +138,26 @@ def test_losses_reject_unknown_terms_and_weight_terms():
     assert out["loss"].item() == pytest.approx(2.0 + 1 / 3)
     with pytest.raises(ValueError, match="unknown loss weight"):
         arteq_losses(pred, gt, {"vertex": 1.0}, torch.ones(5))
+
+
+def test_group_targets_peak_at_the_nearest_element_and_the_cross_entropy_prefers_it():
+    from arteq.training.losses import group_cross_entropy, group_targets
+
+    rots = group_rotations(torch.float64)
+    r = roma.random_rotmat(64, dtype=torch.float64)
+    q = group_targets(r, rots)
+    torch.testing.assert_close(q.sum(-1), torch.ones(64, dtype=torch.float64))
+    nearest = geodesic_deg(r[:, None], rots[None]).argmin(-1)
+    assert (q.argmax(-1) == nearest).all()
+    # on a group element itself the target is (almost) one-hot
+    assert group_targets(rots[7:8], rots)[0, 7] > 0.99
+    # weights on the nearest element score better than uniform ones (which the chordal terms reward)
+    confident = torch.nn.functional.one_hot(nearest, 60).double() * 0.9 + 0.1 / 60
+    uniform = torch.full((64, 60), 1 / 60, dtype=torch.float64)
+    assert group_cross_entropy(confident, r) < group_cross_entropy(uniform, r)
+
+
+def test_group_ce_needs_a_pose_head():
+    with pytest.raises(ValueError, match="group_ce"):
+        arteq_losses({"betas": torch.zeros(1, 10)}, {"global_rotmats": torch.eye(3)[None]}, {"group_ce": 1.0},
+                     torch.ones(3))  # fmt: skip

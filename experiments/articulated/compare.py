@@ -60,6 +60,24 @@ ARMS: dict[str, list[str]] = {
         "model.net.pose_head.logit_eps=null",
         "model.net.pose_head.geometry=true",
     ],
+    # + the anchor cross-entropy on the pose head's group weights (loss_weights.group_ce)
+    "local_invariant_ce": [
+        "model=arteq_local",
+        "model.net.parent_conditioning=invariant",
+        "model.loss_weights.group_ce=1.0",
+    ],
+    "local_invariant_geo_ce": [
+        "model=arteq_local",
+        "model.net.parent_conditioning=invariant",
+        "model.net.pose_head.geometry=true",
+        "model.loss_weights.group_ce=1.0",
+    ],
+    "old_ce": [
+        *OLD_BACKBONE,
+        "model.net.parent_conditioning=aligned",
+        "model.net.pose_head.logit_eps=null",
+        "model.loss_weights.group_ce=1.0",
+    ],
     # the old backbone with the invariant parent (isolates the backbone from the head)
     "old_invariant": [
         *OLD_BACKBONE,
