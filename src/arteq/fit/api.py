@@ -637,8 +637,10 @@ class Fitter:
 
         modes = []
         for i, it in enumerate(items):
-            # a fixed point count: the score depends on the density
-            score, estimate = one_sidedness(resample(it["centred"], 4000, np.random.default_rng(self.seed)))
+            score = estimate = None
+            if self.partial is not False:  # on a fixed point count: the score depends on the density
+                cloud = resample(it["centred"], 4000, np.random.default_rng(self.seed))
+                score, estimate = one_sidedness(cloud)
             m = {"partial": True, "view_dir": None, "camera": None, "score": score}
             viewpoint = it.get("viewpoint")
             if self.partial is False:
@@ -673,14 +675,10 @@ class Fitter:
 
     def _visible(self, vertices: np.ndarray, mode: dict[str, Any]) -> np.ndarray:
         """``[V]`` bool: the vertices of a fitted body (centred metres) its scan's camera sees."""
-        from arteq.fit.partial import visible_vertices
-        from arteq.geometry.normals import vertex_normals
+        from arteq.fit.partial import visibility_function
 
-        v = torch.as_tensor(vertices, dtype=torch.float64)[None]
-        normals = vertex_normals(v, self.body.faces.cpu()).numpy()[0]
-        if mode["camera"] is not None:
-            return visible_vertices(vertices, normals, camera=mode["camera"])
-        return visible_vertices(vertices, normals, direction=mode["view_dir"])
+        visible = visibility_function(self.body.faces, [(mode["camera"], mode["view_dir"])])
+        return visible(torch.as_tensor(vertices)[None])[0].cpu().numpy()
 
     def fit_points(self, points: np.ndarray, units: str = "m", name: str = "points") -> FitResult:
         """Fit one cloud ``[N, 3]`` (in ``units``); bad input gives a result with status ``error``."""

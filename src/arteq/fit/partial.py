@@ -99,3 +99,26 @@ def visible_vertices(
         depth = v @ axis
         uv = np.stack([v @ e1, v @ e2], 1)
     return facing & (-depth >= _nearest_in_cell(uv, -depth, cell_m) - depth_tol_m)
+
+
+def visibility_function(faces, views: list[tuple[np.ndarray | None, np.ndarray | None] | None]):
+    """For :func:`arteq.fit.refine.refine` (``m2s_visible``): a function of posed vertices ``[B, V, 3]``
+    (torch) giving ``[B, V]`` bool, per scan the vertices its camera sees (:func:`visible_vertices`).
+    ``views[b]``: ``(camera, direction)`` with one of them given (the camera wins), or ``None`` for a full
+    scan (every vertex)."""
+    import torch
+
+    from arteq.geometry.normals import vertex_normals
+
+    def visible(verts: torch.Tensor) -> torch.Tensor:
+        v = verts.detach().double().cpu()
+        normals = vertex_normals(v, faces.cpu()).numpy()
+        out = np.ones(v.shape[:2], dtype=bool)
+        for b, view in enumerate(views):
+            if view is not None:
+                camera, direction = view
+                out[b] = visible_vertices(v[b].numpy(), normals[b], camera=camera,
+                                          direction=None if camera is not None else direction)  # fmt: skip
+        return torch.from_numpy(out).to(verts.device)
+
+    return visible
