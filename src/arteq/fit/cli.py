@@ -52,8 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     depth.add_argument("--depth-scale", type=float, default=None,
                        help="metres per unit of a 16-bit PNG (default 0.001: millimetres)")  # fmt: skip
     depth.add_argument("--depth-range", type=float, nargs=2, default=None, metavar=("NEAR", "FAR"),
-                       help="the person's depth band in metres (default: 1 m either side of the median depth "
-                       "of the image's central third)")  # fmt: skip
+                       help="the person's depth band in metres (default: 0.5 m in front of to 1.5 m behind "
+                       "the nearest depths, 15th percentile, of the image's central third)")  # fmt: skip
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None, help="progress bar")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     return ap

@@ -10,10 +10,12 @@ beside the image: ``<name>.json``, else ``intrinsics.json`` in the same folder, 
 ``cx``, ``cy`` and optionally ``depth_scale`` and ``depth_range_m``; command-line values win.
 
 The person is separated from the background by depth range: ``depth_range_m = [near, far]`` when given,
-else the band ``auto_band_m`` either side of the median depth of the image's central third (where the
-person stands in a framed shot). The fitter's clutter removal (:mod:`arteq.fit.clean`: floor, walls,
-stray and flying pixels, other objects) runs on what remains, as for any scan. The camera sits at the origin
-of the returned frame (``viewpoint``), which the refinement uses for visibility.
+else automatically, taking the person as the nearest thing in the middle of the picture: ``d0``, the 15th
+percentile of the depths in the image's central third (width and height), and the band
+``[d0 - auto_band_m[0], d0 + auto_band_m[1]]`` (0.5 m in front, 1.5 m behind: a body, standing or lying,
+and a floor around it that the clean-up removes). The fitter's clutter removal (:mod:`arteq.fit.clean`:
+floor, walls, stray and flying pixels, other objects) runs on what remains, as for any scan. The camera
+sits at the origin of the returned frame (``viewpoint``), which the refinement uses for visibility.
 
 PNGs are read with Pillow (installed with matplotlib). Every failure is a :class:`arteq.io.scans.ScanError`
 naming the file.
@@ -38,12 +40,13 @@ INTRINSIC_KEYS = ("fx", "fy", "cx", "cy")
 class DepthOptions:
     """How depth images are read. ``intrinsics``: ``fx, fy, cx, cy`` given on the command line (``None``
     entries: from the JSON beside the file); ``depth_scale``: metres per PNG unit (``None``: the JSON's, else
-    0.001); ``depth_range_m``: the person's ``(near, far)`` band (``None``: the JSON's, else automatic)."""
+    0.001); ``depth_range_m``: the person's ``(near, far)`` band (``None``: the JSON's, else automatic, with
+    ``auto_band_m`` in front of and behind the nearest depths of the image's centre: module docstring)."""
 
     intrinsics: dict[str, float | None] = field(default_factory=dict)
     depth_scale: float | None = None
     depth_range_m: tuple[float, float] | None = None
-    auto_band_m: float = 1.0
+    auto_band_m: tuple[float, float] = (0.5, 1.5)
 
 
 @dataclass
@@ -205,8 +208,8 @@ def read_depth(path: str | Path, options: DepthOptions | None = None) -> DepthSc
         h, w = depth.shape
         centre = depth[h // 3 : h - h // 3, w // 3 : w - w // 3]
         centre = centre[np.isfinite(centre) & (centre > 0)]
-        d0 = float(np.median(centre if len(centre) else depth[valid]))
-        near, far = max(0.0, d0 - opts.auto_band_m), d0 + opts.auto_band_m
+        d0 = float(np.percentile(centre if len(centre) else depth[valid], 15))
+        near, far = max(0.0, d0 - opts.auto_band_m[0]), d0 + opts.auto_band_m[1]
     keep = valid & (depth >= near) & (depth <= far)
     if not keep.any():
         raise ScanError(f"{path}: no pixel within the depth range {near:.3g}-{far:.3g} m")
