@@ -151,3 +151,22 @@ def test_name_form_checkpoint_resumes_under_a_partial_config(tmp_path, tiny_conf
     assert state["lr_schedulers"][0]["last_epoch"] == 4
     assert int(next(iter(state["optimizer_states"][0]["state"].values()))["step"]) == 4
     assert state["hyper_parameters"]["optimizer"]["_target_"] == "torch.optim.Adam"
+
+
+def test_older_stage1_checkpoints_match_configs_that_keep_their_behaviour():
+    # A stage-1 checkpoint written before an option existed holds no value for it; it must still match a
+    # config whose value is what the network / data did before, and not one that changes it.
+    from arteq.training.plan import ADDED_DEFAULTS, _data_signature, _with_added_defaults
+
+    old = {"backbone": {"radii": [0.1]}, "pose_head": {"dim": 8}}
+    want = {"backbone": {"radii": [0.1], "normalize": False}, "pose_head": {"dim": 8, "geometry": False,
+                                                                            "logit_eps": None}}  # fmt: skip
+    assert _with_added_defaults(old, ADDED_DEFAULTS["net"]) == want
+    want["pose_head"]["geometry"] = True
+    assert _with_added_defaults(old, ADDED_DEFAULTS["net"]) != want
+    assert _data_signature({"num_points": 500}) == _data_signature(
+        {"num_points": 500, "shape_prior": "normal"}
+    )
+    assert _data_signature({"num_points": 500}) != _data_signature(
+        {"num_points": 500, "shape_prior": "allages"}
+    )

@@ -28,13 +28,33 @@ log = logging.getLogger("arteq.train")
 
 #: Data settings a found stage-1 checkpoint must share with the stage-2 run (what the clouds look like).
 STAGE1_DATA_KEYS = ("source", "num_points", "augment", "noise_std", "density_contrast", "density_wavelength",
-                    "beta_scale", "amass_root", "amass", "wide_poses")  # fmt: skip
+                    "beta_scale", "amass_root", "amass", "wide_poses", "shape_prior")  # fmt: skip
+#: Values that settings added after a checkpoint was written have when it does not name them: an older
+#: stage-1 checkpoint matches a config that sets them so (what the network / data did before the option).
+ADDED_DEFAULTS = {
+    "net": {"backbone": {"normalize": False}, "pose_head": {"logit_eps": None, "geometry": False}},
+    "data": {"wide_poses": 0.0, "shape_prior": "normal"},
+}
 #: Environment variable through which rank 0 hands its run plan to the ranks Lightning launches.
 PLAN_ENV = "ARTEQ_RUN_PLAN"
 
 
+def _with_added_defaults(value: Any, defaults: dict) -> Any:
+    """``value`` (a config mapping) with the keys of ``defaults`` it lacks filled in (recursively)."""
+    if not isinstance(value, dict):
+        return value
+    out = dict(value)
+    for k, d in defaults.items():
+        if isinstance(d, dict):
+            if isinstance(out.get(k), dict):
+                out[k] = _with_added_defaults(out[k], d)
+        elif k not in out:
+            out[k] = d
+    return out
+
+
 def _data_signature(data: dict | None) -> dict:
-    data = data or {}
+    data = _with_added_defaults(dict(data or {}), ADDED_DEFAULTS["data"])
     return {k: data.get(k) for k in STAGE1_DATA_KEYS}
 
 
@@ -52,7 +72,9 @@ def find_stage1_checkpoint(cfg: DictConfig) -> Path | None:
     """Newest ``last.ckpt`` of a previous stage-1 run with the same network, body model and kind of
     data (``STAGE1_DATA_KEYS``: e.g. a stage 1 trained without rotation augmentation is not reused by an
     augmented stage 2)."""
-    want_net = OmegaConf.to_container(cfg.model.net, resolve=True)
+    want_net = _with_added_defaults(
+        OmegaConf.to_container(cfg.model.net, resolve=True), ADDED_DEFAULTS["net"]
+    )
     want_net.pop("num_betas", None)
     want_body = {
         k: v for k, v in OmegaConf.to_container(cfg.body_model, resolve=True).items() if k != "_target_"
@@ -62,7 +84,7 @@ def find_stage1_checkpoint(cfg: DictConfig) -> Path | None:
         info = _checkpoint_net_config(path)
         if info is None or info["stage"] != 1:
             continue
-        net = dict(info["net"] or {})
+        net = _with_added_defaults(dict(info["net"] or {}), ADDED_DEFAULTS["net"])
         net.pop("num_betas", None)
         if net == want_net and info["body"] == want_body and _data_signature(info["data"]) == want_data:
             return path
