@@ -499,12 +499,19 @@ class Fitter:
         t1 = time.perf_counter()
         dtype = self.body.v_template.dtype
         if self.refine:
+            visible = None
+            if any(m["partial"] for m in modes):  # model -> scan only where each partial scan's camera sees
+                from arteq.fit.partial import visibility_function
+
+                views = [(m["camera"], m["view_dir"]) if m["partial"] else None for m in modes]
+                visible = visibility_function(self.body.faces, views)
             out = refine(
                 self.body,
                 torch.as_tensor(np.stack(ref_in), dtype=dtype, device=self.device),
                 torch.as_tensor(probs_ref, dtype=dtype, device=self.device),
                 init,
                 self.refine_config,
+                m2s_visible=visible,
             )
             local, betas, transl = out.local_rotmats, out.betas, out.transl
             verts, joints, grot = out.vertices, out.joints, out.global_rotmats

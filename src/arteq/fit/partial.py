@@ -6,7 +6,10 @@
   a point counts as seen when it is within ``tol_m`` of its cell's nearest depth; the score is the best
   direction's seen fraction. Full surfaces score 0.54-0.69, single views 0.79-1.0 (16 synthetic scans of
   each kind, 4000 points: experiments/single_view/README.md); :data:`PARTIAL_SCORE` is between. The best
-  direction is the estimated camera direction. It needs no fit, so a poor first fit does not confuse it.
+  direction is the estimated camera direction, up to its sign: a one-sided sheet looks the same from both
+  sides. The sign is where the surface bulges (:func:`bulge`): a body is convex, so seen from the camera
+  a point's neighbours lie behind its tangent plane. It needs no fit, so a poor first fit does not
+  confuse it.
 * :func:`visible_vertices`: the body's vertices a camera sees, from a position (perspective, e.g. a depth
   image's camera at its origin) or a direction (far away): turned toward the camera and not hidden, by a
   z-buffer of the vertices splatted on cells ``cell_m`` wide at the body (the nearest depth per cell; a
@@ -51,7 +54,8 @@ def one_sidedness(
     points: np.ndarray, num_dirs: int = 100, cell_m: float = 0.03, tol_m: float = 0.05
 ) -> tuple[float, np.ndarray]:
     """``(score, direction)`` of a cloud ``[N, 3]`` (metres): the largest fraction of points seen from one
-    of ``num_dirs`` directions, and that direction (unit, from the body toward the camera)."""
+    of ``num_dirs`` directions, and that direction (unit, from the body toward the camera; the sign from
+    :func:`bulge`)."""
     p = np.asarray(points, dtype=np.float64)
     best, best_dir = -1.0, None
     for d in sphere_directions(num_dirs):
@@ -62,7 +66,21 @@ def one_sidedness(
         )
         if seen > best:
             best, best_dir = seen, d
-    return best, best_dir
+    return best, (best_dir if bulge(p, best_dir) <= 0 else -best_dir)
+
+
+def bulge(points: np.ndarray, direction: np.ndarray, k: int = 16) -> float:
+    """Mean offset (metres) of each point's ``k - 1`` nearest neighbours along its normal turned toward
+    ``direction`` (the normal of the plane fitted to its ``k`` nearest points): negative when the surface
+    bulges toward ``direction`` (convex seen from there), positive when it is hollow."""
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=np.float64)
+    _, nn = cKDTree(p).query(p, k=k)
+    local = p[nn] - p[nn].mean(1, keepdims=True)
+    normals = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))[1][:, :, 0]
+    normals *= np.where(normals @ direction < 0, -1.0, 1.0)[:, None]
+    return float(np.einsum("nkc,nc->nk", p[nn[:, 1:]] - p[:, None], normals).mean())
 
 
 def visible_vertices(

@@ -13,7 +13,9 @@ theta_k^start exp([delta_k])``, starting at 0), a translation offset and the bet
   keeps limbs out of the wrong local minima free nearest neighbours fall into; afterwards matches are
   free, at half weight when the matched part is not one of the point's predicted ones;
 * model -> scan: a fixed farthest-point subset of vertices against the scan, point-to-point, the
-  worst ``m2s_trim`` fraction dropped (holes), same kernel;
+  worst ``m2s_trim`` fraction dropped (holes), same kernel; for a partial scan (one camera's view,
+  ``m2s_visible``) only the subset vertices the camera sees take part (recomputed at every re-match), so
+  the unseen side is not pulled toward points that do not exist;
 * priors: ``w_delta`` mean squared residual rotation (rad^2, anchors to the start; decays linearly to
   ``w_delta_end``), ``w_betas`` mean squared betas (units of sigma); betas beyond the first
   ``early_betas`` are frozen for the first third.
@@ -222,6 +224,17 @@ class _TorchMatcher:
         return torch.stack([self._nearest(v[i], self.points[i], None) for i in range(v.shape[0])])
 
 
+def visible_trimmed_mean(
+    values: torch.Tensor, d2: torch.Tensor, visible: torch.Tensor, trim: float
+) -> torch.Tensor:
+    """``[B]``: per row, the mean of ``values [B, S]`` over the ``visible`` entries, the ``trim`` fraction of
+    them with the largest ``d2`` dropped (at least one kept; 0 for a row with none visible)."""
+    order = d2.masked_fill(~visible, float("inf")).sort(dim=1).values
+    keep = ((1 - trim) * visible.sum(1)).round().clamp_min(1).long()
+    use = visible & (d2 <= order.gather(1, (keep - 1)[:, None]))
+    return (values * use).sum(-1) / use.sum(-1).clamp_min(1)
+
+
 def _gather(x: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
     """``x [B, M, C]``, ``idx [B, N]`` -> ``[B, N, C]``."""
     return torch.gather(x, 1, idx[..., None].expand(-1, -1, x.shape[-1]))
@@ -235,6 +248,7 @@ def refine(
     config: RefineConfig | None = None,
     callback: Callable[[int, torch.Tensor], None] | None = None,
     m2s_subset: torch.Tensor | None = None,
+    m2s_visible: Callable[[torch.Tensor], torch.Tensor] | None = None,
 ) -> RefineOutput:
     """Refine ``init`` against ``points`` (see module docstring).
 
@@ -246,6 +260,9 @@ def refine(
         config: :class:`RefineConfig`.
         callback: called as ``callback(iteration, vertices [B,V,3])`` before each step (for studies).
         m2s_subset: ``[S]`` vertex indices for the model -> scan term (default: farthest points).
+        m2s_visible: for partial scans, a function of the posed vertices ``[B, V, 3]`` giving ``[B, V]``
+            bool, the vertices each scan's camera sees (e.g. :func:`arteq.fit.partial.visibility_function`):
+            the model -> scan term then uses only those of the subset. ``None``: every subset vertex.
     Returns:
         :class:`RefineOutput`.
     """
@@ -299,7 +316,7 @@ def refine(
     early_mask[: cfg.early_betas] = 1
     keep_m2s = max(1, int(round((1 - cfg.m2s_trim) * len(m2s_subset))))
     history: list[dict[str, float]] = []
-    idx = normals = w = None
+    idx = normals = w = visible = None
 
     def pose_of(d: torch.Tensor) -> torch.Tensor:
         return start_rot @ roma.rotvec_to_rotmat(d)
@@ -324,6 +341,8 @@ def refine(
                 else:
                     ok = torch.gather(allowed, 2, part_labels[idx][..., None])[..., 0]
                     w = torch.where(ok, 1.0, 0.5).to(dtype)
+                if m2s_visible is not None:
+                    visible = m2s_visible(vd).to(device)[:, m2s_subset]
             sub_idx = matcher.model_to_scan(vd[:, m2s_subset])
         if partial:
             sel, inv = torch.unique(torch.cat([idx.reshape(-1), m2s_subset]), return_inverse=True)
@@ -337,8 +356,11 @@ def refine(
         r2 = (diff * normals).sum(-1).square() + cfg.w_p2p * diff.square().sum(-1)
         s2m = (w * geman_mcclure(r2, sigma)).sum(-1) / w.sum(-1)
         d2 = ((v_sub - _gather(points, sub_idx)) * 100.0).square().sum(-1)
-        kept = torch.topk(d2.detach(), keep_m2s, dim=1, largest=False).indices
-        m2s = geman_mcclure(torch.gather(d2, 1, kept), sigma).mean(-1)
+        if visible is None:
+            kept = torch.topk(d2.detach(), keep_m2s, dim=1, largest=False).indices
+            m2s = geman_mcclure(torch.gather(d2, 1, kept), sigma).mean(-1)
+        else:
+            m2s = visible_trimmed_mean(geman_mcclure(d2, sigma), d2.detach(), visible, cfg.m2s_trim)
         prior = w_delta * delta.square().sum(-1).mean(-1) + cfg.w_betas * betas.square().mean(-1)
         loss_b = s2m + cfg.w_m2s * m2s + prior
         opt.zero_grad(set_to_none=True)
