@@ -25,6 +25,8 @@ OLD_BACKBONE = [
     "model.net.backbone.radii=[0.253,0.3573,0.506,0.506]", "model.net.backbone.strides=[2,1,2,1]",
     "model.net.backbone.neighbours=[32,16,32,16]", "model.net.backbone.normalize=false",
 ]  # fmt: skip
+# model=arteq_local as first screened (before its geometry tokens and group cross-entropy became its defaults)
+LOCAL = ["model=arteq_local", "model.net.pose_head.geometry=false", "model.loss_weights.group_ce=0.0"]
 ARMS: dict[str, list[str]] = {
     # the configuration the shipped anny22 model has (radii scaled to 500 points, plain sums, aligned parent)
     "old": [*OLD_BACKBONE, "model.net.parent_conditioning=aligned", "model.net.pose_head.logit_eps=null"],
@@ -32,25 +34,25 @@ ARMS: dict[str, list[str]] = {
     "old_eps": [*OLD_BACKBONE, "model.net.parent_conditioning=aligned", "model.net.pose_head.logit_eps=1e-4"],
     # the part-local network (model=arteq_local: metric radii, neighbour means, 250 deep centres, logit_eps)
     # with each parent conditioning
-    "local_aligned": ["model=arteq_local", "model.net.parent_conditioning=aligned"],
-    "local_invariant": ["model=arteq_local", "model.net.parent_conditioning=invariant"],
-    "local_none": ["model=arteq_local", "model.net.parent_conditioning=none"],
+    "local_aligned": [*LOCAL, "model.net.parent_conditioning=aligned"],
+    "local_invariant": [*LOCAL, "model.net.parent_conditioning=invariant"],
+    "local_none": [*LOCAL, "model.net.parent_conditioning=none"],
     # + widened everyday training poses (half the training draws)
     "local_invariant_wide": [
-        "model=arteq_local",
+        *LOCAL,
         "model.net.parent_conditioning=invariant",
         "data.wide_poses=0.5",
     ],
     # smaller balls
     "small_invariant": [
-        "model=arteq_local",
+        *LOCAL,
         "model.net.parent_conditioning=invariant",
         "model.net.backbone.radii=[0.06,0.08,0.11,0.11]",
     ],
     # + the part's point distribution seen from each group element in every pose-head token
     # (pose_head.geometry, arteq.models.heads.part_geometry)
     "local_invariant_geo": [
-        "model=arteq_local",
+        *LOCAL,
         "model.net.parent_conditioning=invariant",
         "model.net.pose_head.geometry=true",
     ],
@@ -62,13 +64,26 @@ ARMS: dict[str, list[str]] = {
     ],
     # + the anchor cross-entropy on the pose head's group weights (loss_weights.group_ce)
     "local_invariant_ce": [
-        "model=arteq_local",
+        *LOCAL,
         "model.net.parent_conditioning=invariant",
         "model.loss_weights.group_ce=1.0",
     ],
     "local_invariant_geo_ce": [
-        "model=arteq_local",
+        *LOCAL,
         "model.net.parent_conditioning=invariant",
+        "model.net.pose_head.geometry=true",
+        "model.loss_weights.group_ce=1.0",
+    ],
+    # parent conditioning on the head of model=arteq_local as it is now (geometry tokens + group_ce)
+    "local_aligned_geo_ce": [
+        *LOCAL,
+        "model.net.parent_conditioning=aligned",
+        "model.net.pose_head.geometry=true",
+        "model.loss_weights.group_ce=1.0",
+    ],
+    "local_none_geo_ce": [
+        *LOCAL,
+        "model.net.parent_conditioning=none",
         "model.net.pose_head.geometry=true",
         "model.loss_weights.group_ce=1.0",
     ],
