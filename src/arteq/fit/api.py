@@ -504,7 +504,8 @@ class Fitter:
                 from arteq.fit.partial import visibility_function
 
                 views = [(m["camera"], m["view_dir"]) if m["partial"] else None for m in modes]
-                visible = visibility_function(self.body.faces, views)
+                incidence = body_tables(self.body, self.refine_config.m2s_vertices).incidence
+                visible = visibility_function(self.body.faces, views, incidence)
             out = refine(
                 self.body,
                 torch.as_tensor(np.stack(ref_in), dtype=dtype, device=self.device),

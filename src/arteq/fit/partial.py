@@ -4,7 +4,7 @@
   right direction, nearly every point is the nearest one in its image cell. For each of ``num_dirs``
   directions spread over the sphere the points are splatted (orthographically) on cells ``cell_m`` wide and
   a point counts as seen when it is within ``tol_m`` of its cell's nearest depth; the score is the best
-  direction's seen fraction. Full surfaces score 0.54-0.69, single views 0.79-1.0 (16 synthetic scans of
+  direction's seen fraction. Full surfaces score 0.54-0.70, single views 0.81-1.0 (16 synthetic scans of
   each kind, 4000 points: experiments/single_view/README.md); :data:`PARTIAL_SCORE` is between. The best
   direction is the estimated camera direction, up to its sign: a one-sided sheet looks the same from both
   sides. The sign is where the surface bulges (:func:`bulge`): a body is convex, so seen from the camera
@@ -41,46 +41,58 @@ def _image_axes(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(axis, e1)
 
 
-def _nearest_in_cell(uv: np.ndarray, height: np.ndarray, cell_m: float) -> np.ndarray:
-    """Per point, the largest ``height`` among the points of its ``cell_m`` cell of the plane ``uv``."""
+def _cells(uv: np.ndarray, cell_m: float) -> np.ndarray:
+    """Cell index of each point of the plane ``uv [N, 2]`` on a grid of ``cell_m`` squares."""
     cells = np.floor((uv - uv.min(0)) / cell_m).astype(np.int64)
-    key = cells[:, 0] * (cells[:, 1].max() + 1) + cells[:, 1]
-    top = np.full(key.max() + 1, -np.inf)
-    np.maximum.at(top, key, height)
-    return top[key]
+    return cells[:, 0] * (cells[:, 1].max() + 1) + cells[:, 1]
 
 
 def one_sidedness(
-    points: np.ndarray, num_dirs: int = 100, cell_m: float = 0.03, tol_m: float = 0.05
+    points: np.ndarray,
+    num_dirs: int = 100,
+    cell_m: float = 0.03,
+    tol_m: float = 0.05,
+    near_best: float = 0.02,
 ) -> tuple[float, np.ndarray]:
     """``(score, direction)`` of a cloud ``[N, 3]`` (metres): the largest fraction of points seen from one
-    of ``num_dirs`` directions, and that direction (unit, from the body toward the camera; the sign from
-    :func:`bulge`)."""
+    of ``num_dirs`` directions (``num_dirs // 2`` axes, both ways along each), and the camera direction
+    (unit, from the body toward the camera): the mean of the axes scoring within ``near_best`` of the best,
+    its sign from :func:`bulge`."""
     p = np.asarray(points, dtype=np.float64)
-    best, best_dir = -1.0, None
-    for d in sphere_directions(num_dirs):
+    axes = sphere_directions(2 * (num_dirs // 2))[: num_dirs // 2]  # one hemisphere of axes
+    scores = []
+    for d in axes:
         e1, e2 = _image_axes(d)
-        height = p @ d  # the camera is far along +d: the nearest point has the largest height
-        seen = float(
-            (height >= _nearest_in_cell(np.stack([p @ e1, p @ e2], 1), height, cell_m) - tol_m).mean()
-        )
-        if seen > best:
-            best, best_dir = seen, d
-    return best, (best_dir if bulge(p, best_dir) <= 0 else -best_dir)
+        key = _cells(np.stack([p @ e1, p @ e2], 1), cell_m)
+        height = p @ d  # seen from far along +d: the largest height; from -d: the smallest
+        top = np.full(key.max() + 1, -np.inf)
+        np.maximum.at(top, key, height)
+        bottom = np.full(key.max() + 1, np.inf)
+        np.minimum.at(bottom, key, height)
+        scores.append(max((height >= top[key] - tol_m).mean(), (height <= bottom[key] + tol_m).mean()))
+    scores = np.asarray(scores)
+    best = int(scores.argmax())
+    # a sheet looks one-sided from a cone of directions: its centre is the mean of the near-best axes
+    near = axes[scores >= scores[best] - near_best]
+    direction = (near * np.sign(near @ axes[best])[:, None]).sum(0)
+    direction /= np.linalg.norm(direction)
+    return float(scores[best]), (direction if bulge(p, direction) <= 0 else -direction)
 
 
-def bulge(points: np.ndarray, direction: np.ndarray, k: int = 16) -> float:
-    """Mean offset (metres) of each point's ``k - 1`` nearest neighbours along its normal turned toward
-    ``direction`` (the normal of the plane fitted to its ``k`` nearest points): negative when the surface
-    bulges toward ``direction`` (convex seen from there), positive when it is hollow."""
+def bulge(points: np.ndarray, direction: np.ndarray, k: int = 16, max_points: int = 1000) -> float:
+    """Mean offset (metres) of a point's ``k - 1`` nearest neighbours along its normal turned toward
+    ``direction`` (the normal of the plane fitted to its ``k`` nearest points), over up to ``max_points``
+    evenly strided points: negative when the surface bulges toward ``direction`` (convex seen from there),
+    positive when it is hollow."""
     from scipy.spatial import cKDTree
 
     p = np.asarray(points, dtype=np.float64)
-    _, nn = cKDTree(p).query(p, k=k)
+    q = p[:: max(1, len(p) // max_points)]
+    _, nn = cKDTree(p).query(q, k=k)
     local = p[nn] - p[nn].mean(1, keepdims=True)
     normals = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))[1][:, :, 0]
     normals *= np.where(normals @ direction < 0, -1.0, 1.0)[:, None]
-    return float(np.einsum("nkc,nc->nk", p[nn[:, 1:]] - p[:, None], normals).mean())
+    return float(np.einsum("nkc,nc->nk", p[nn[:, 1:]] - q[:, None], normals).mean())
 
 
 def visible_vertices(
@@ -116,21 +128,27 @@ def visible_vertices(
     else:
         depth = v @ axis
         uv = np.stack([v @ e1, v @ e2], 1)
-    return facing & (-depth >= _nearest_in_cell(uv, -depth, cell_m) - depth_tol_m)
+    key = _cells(uv, cell_m)
+    nearest = np.full(key.max() + 1, np.inf)
+    np.minimum.at(nearest, key, depth)
+    return facing & (depth <= nearest[key] + depth_tol_m)
 
 
-def visibility_function(faces, views: list[tuple[np.ndarray | None, np.ndarray | None] | None]):
+def visibility_function(
+    faces, views: list[tuple[np.ndarray | None, np.ndarray | None] | None], incidence=None
+):
     """For :func:`arteq.fit.refine.refine` (``m2s_visible``): a function of posed vertices ``[B, V, 3]``
     (torch) giving ``[B, V]`` bool, per scan the vertices its camera sees (:func:`visible_vertices`).
     ``views[b]``: ``(camera, direction)`` with one of them given (the camera wins), or ``None`` for a full
-    scan (every vertex)."""
+    scan (every vertex). ``incidence``: the body's sparse vertex-face matrix (faster normals, see
+    :func:`arteq.geometry.normals.vertex_normals`)."""
     import torch
 
     from arteq.geometry.normals import vertex_normals
 
     def visible(verts: torch.Tensor) -> torch.Tensor:
+        normals = vertex_normals(verts.detach(), faces, incidence).double().cpu().numpy()
         v = verts.detach().double().cpu()
-        normals = vertex_normals(v, faces.cpu()).numpy()
         out = np.ones(v.shape[:2], dtype=bool)
         for b, view in enumerate(views):
             if view is not None:
