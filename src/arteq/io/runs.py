@@ -169,7 +169,7 @@ def read_curves(run_dir: str | Path) -> list[dict[str, float]]:
 class Run:
     """One run folder with test results: its ``metrics.json``, config and (optional) curves.
 
-    Fitter evaluations (``python -m arteq.fitting.evaluate``) are runs too: their summary names the
+    Fitter evaluations (``python -m arteq.optim_fit.evaluate``) are runs too: their summary names the
     ``method``, their ``arch`` is ``"fitter"``.
     """
 
