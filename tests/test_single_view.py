@@ -35,7 +35,13 @@ def test_zbuffer_keeps_the_nearest_surface_and_its_exact_depth():
     near_v, near_f = _square(1.0, 0.2)
     verts = torch.cat([far_v, near_v])
     faces = torch.cat([far_f, near_f + 4])
-    face, bary, depth = rasterize(verts, faces, focal=50.0, width=64, height=64, cx=32.0, cy=32.0)
+    face, bary, depth = rasterize(verts, faces, focal=50.0, width=64, height=64, cx=32.0, cy=32.0, cull=False)
+    # culling keeps the triangles seen counter-clockwise in the image (x right, y down): these are clockwise
+    culled, _, _ = rasterize(verts, faces, focal=50.0, width=64, height=64, cx=32.0, cy=32.0)
+    assert (culled == -1).all()
+    flipped, _, flipped_depth = rasterize(verts, faces.flip(1), 50.0, 64, 64, 32.0, 32.0)
+    assert torch.equal(flipped >= 0, face >= 0)
+    torch.testing.assert_close(flipped_depth, depth, rtol=0, atol=1e-12)
     centre = (32, 32)  # ray along z: both squares are on it, the near one wins
     assert face[centre] in (2, 3) and depth[centre] == pytest.approx(1.0, abs=1e-9)
     # 18.5 px off centre: x = 0.37 z, outside the near square (0.2 m at 1 m), inside the far one (1 m at 2 m)

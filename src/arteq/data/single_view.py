@@ -140,22 +140,41 @@ def look_at(position: torch.Tensor, target: torch.Tensor, up: torch.Tensor) -> t
 
 
 def rasterize(
-    verts_cam: torch.Tensor, faces: torch.Tensor, focal: float, width: int, height: int, cx: float, cy: float
+    verts_cam: torch.Tensor,
+    faces: torch.Tensor,
+    focal: float,
+    width: int,
+    height: int,
+    cx: float,
+    cy: float,
+    cull: bool = True,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Z-buffer of a mesh in camera coordinates (z > 0 in front of the camera; pinhole ``u = f x / z + cx``,
-    pixel ``(i, j)`` has its centre at ``(j + 0.5, i + 0.5)``).
+    pixel ``(i, j)`` has its centre at ``(j + 0.5, i + 0.5)``). ``cull``: skip the triangles turned away
+    from the camera (seen clockwise in the image: the inside of a mesh whose triangles run
+    counter-clockwise seen from outside, as the body models' do), which a closed surface hides anyway.
+
+    Every triangle's barycentric coordinates divided by the vertex depths are linear in the pixel position
+    (perspective-correct interpolation): they are evaluated for every (triangle, pixel of its bounding box)
+    pair at once; their sum is one over the depth.
 
     Returns ``face [H, W]`` long (-1 where no surface), ``bary [H, W, 3]`` the 3D barycentric coordinates
-    of the pixel's ray on that face (perspective-correct), ``depth [H, W]`` (inf where no surface).
+    of the pixel's ray on that face, ``depth [H, W]`` (inf where no surface).
     """
     dtype = verts_cam.dtype
     z = verts_cam[:, 2]
     uv = verts_cam[:, :2] / z[:, None] * focal + torch.tensor([cx, cy], dtype=dtype)
-    front = (z[faces] > 1e-3).all(1)
-    faces = faces[front]
-    fid_all = torch.nonzero(front)[:, 0]
     t = uv[faces]  # [F, 3, 2]
-    tz = z[faces]  # [F, 3]
+    a, b, c = t[:, 0], t[:, 1], t[:, 2]
+    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    keep = (z[faces] > 1e-3).all(1) & ((area < -1e-12) if cull else (area.abs() > 1e-12))
+    fid = torch.nonzero(keep)[:, 0]
+    t, area, tz = t[fid], area[fid], z[faces[fid]]
+    # lambda_i(u, v) = (k_i + u * du_i + v * dv_i) / area from the opposite edge (j, k), divided by z_i
+    nxt, prv = t.roll(-1, dims=1), t.roll(-2, dims=1)  # vertex j and k opposite vertex i
+    k0 = nxt[..., 0] * prv[..., 1] - nxt[..., 1] * prv[..., 0]
+    coef = torch.stack([k0, nxt[..., 1] - prv[..., 1], prv[..., 0] - nxt[..., 0]], -1)  # [F, 3 (i), 3]
+    coef = coef / (area[:, None, None] * tz[..., None])
     lo = torch.ceil(t.amin(1) - 0.5).long()
     hi = torch.floor(t.amax(1) - 0.5).long()
     lo[:, 0].clamp_(0, width - 1)
@@ -164,34 +183,26 @@ def rasterize(
     hi[:, 1].clamp_(-1, height - 1)
     size = (hi - lo + 1).clamp_min(0)  # [F, 2] pixels per axis of each bounding box
     count = size[:, 0] * size[:, 1]
-    f = torch.repeat_interleave(torch.arange(len(faces)), count)
+    f = torch.repeat_interleave(torch.arange(len(fid)), count)
     off = torch.arange(len(f)) - torch.repeat_interleave(torch.cumsum(count, 0) - count, count)
     col = lo[f, 0] + off % size[f, 0]
     row = lo[f, 1] + torch.div(off, size[f, 0], rounding_mode="floor")
-    p = torch.stack([col, row], -1).to(dtype) + 0.5
-    a, b, c = t[f, 0], t[f, 1], t[f, 2]
-
-    def cross2(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-        return x[:, 0] * y[:, 1] - x[:, 1] * y[:, 0]
-
-    area = cross2(b - a, c - a)
-    safe = torch.where(area.abs() > 1e-12, area, torch.ones_like(area))
-    lam = torch.stack([cross2(b - p, c - p), cross2(c - p, a - p), cross2(a - p, b - p)], -1) / safe[:, None]
-    inside = (lam >= 0).all(-1) & (area.abs() > 1e-12)
-    f, lam, col, row = f[inside], lam[inside], col[inside], row[inside]
-    w = lam / tz[f]  # perspective-correct weights, sum = 1 / depth
+    cf = coef[f]  # [P, 3, 3]
+    w = cf[..., 0] + cf[..., 1] * (col.to(dtype) + 0.5)[:, None] + cf[..., 2] * (row.to(dtype) + 0.5)[:, None]
+    inside = (w >= 0).all(-1)
+    f, w, pix = f[inside], w[inside], (row * width + col)[inside]
     depth = 1.0 / w.sum(-1)
-    pix = row * width + col
     best = torch.full((height * width,), math.inf, dtype=dtype).scatter_reduce(0, pix, depth, "amin")
     win = depth <= best[pix]
     # one winner per pixel (ties: the lowest pair index), deterministic
     pair = torch.arange(len(f))
-    big = torch.full((height * width,), len(f), dtype=torch.long)
-    chosen = big.scatter_reduce(0, pix[win], pair[win], "amin")
+    chosen = torch.full((height * width,), len(f), dtype=torch.long).scatter_reduce(
+        0, pix[win], pair[win], "amin"
+    )
     hit = chosen < len(f)
     face = torch.full((height * width,), -1, dtype=torch.long)
     bary = torch.zeros(height * width, 3, dtype=dtype)
-    face[hit] = fid_all[f[chosen[hit]]]
+    face[hit] = fid[f[chosen[hit]]]
     bary[hit] = w[chosen[hit]] * depth[chosen[hit], None]
     return face.view(height, width), bary.view(height, width, 3), best.view(height, width)
 
