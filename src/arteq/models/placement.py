@@ -9,7 +9,8 @@ remains is the density variation within a part. It is differentiable, translatio
 and costs one matrix product.
 
 A part seen from one side only (a single depth camera) still has its points' centroid off its surface
-centroid, toward the camera (by about 0.6 of the part's radius for a cylinder: 4-9 cm on the torso).
+centroid, toward the camera (by 2/pi of the radius for a cylinder seen side-on: 6-9 cm on a torso 10-15 cm
+in radius; the whole body's placement is 4-6 cm off, tests/test_single_view_parts.py).
 :func:`align_translation` then moves the translation by translation-only ICP of the points to the posed
 mesh (each point to the nearest vertex of its own part), which uses only the surface that was seen.
 """
