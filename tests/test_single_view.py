@@ -187,3 +187,20 @@ def test_the_data_config_builds_view_sets():
     cfg = compose_config(["data.view_splits=[test_view_side]", "data.single_view.prob=0.25"])
     assert list(cfg.data.view_splits) == ["test_view_side"] and cfg.data.single_view.prob == 0.25
     assert list(compose_config([]).data.view_splits) == [] and compose_config([]).data.single_view.prob == 0
+
+
+@pytest.mark.slow
+def test_a_training_run_on_single_view_clouds_runs_end_to_end(tmp_path):
+    """``data.single_view.prob=1``: every training cloud a single-view scan, through the training command."""
+    import subprocess
+    import sys
+
+    from conftest import subprocess_env
+
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "arteq.train", "+experiment=stage1", "+scale=tiny", "+tiny_net=arteq",
+           "data.single_view.prob=1.0", f"paths.output_dir={out}", f"hydra.run.dir={tmp_path / 'hydra'}",
+           f"data.cache_root={tmp_path / 'cache'}"]  # fmt: skip
+    res = subprocess.run(cmd, env=subprocess_env(), capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert (out / "metrics.json").is_file()
