@@ -5,15 +5,18 @@
   directions spread over the sphere the points are splatted (orthographically) on cells ``cell_m`` wide and
   a point counts as seen when it is within ``tol_m`` of its cell's nearest depth; the score is the best
   direction's seen fraction. Full surfaces score 0.54-0.70, single views 0.81-1.0 (16 synthetic scans of
-  each kind, 4000 points: experiments/single_view/README.md); :data:`PARTIAL_SCORE` is between. The best
-  direction is the estimated camera direction, up to its sign: a one-sided sheet looks the same from both
-  sides. The sign is where the surface bulges (:func:`bulge`): a body is convex, so seen from the camera
-  a point's neighbours lie behind its tangent plane. It needs no fit, so a poor first fit does not
-  confuse it.
+  each kind, 4000 points: experiments/single_view/README.md); :data:`PARTIAL_SCORE` is between. The mean
+  of the near-best directions is the estimated camera direction (8-19 degrees off, median per view), up
+  to its sign: a one-sided sheet looks the same from both sides. The sign is where the surface bulges
+  (:func:`bulge`): a body is convex, so seen from the camera a point's neighbours lie behind its tangent
+  plane. It needs no fit, so a poor first fit does not confuse it.
 * :func:`visible_vertices`: the body's vertices a camera sees, from a position (perspective, e.g. a depth
   image's camera at its origin) or a direction (far away): turned toward the camera and not hidden, by a
   z-buffer of the vertices splatted on cells ``cell_m`` wide at the body (the nearest depth per cell; a
   vertex more than ``depth_tol_m`` behind it is hidden).
+
+* :func:`visibility_function`: :func:`visible_vertices` for a batch of posed bodies, as the refinement's
+  ``m2s_visible``.
 
 numpy, one scan at a time.
 """
