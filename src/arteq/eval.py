@@ -2,7 +2,9 @@
 
 Writes ``metrics.json`` and ``metrics.md`` (a Markdown table) into the run folder. Metrics: part
 accuracy (%), V2V (cm, all vertices), MPJPE (cm, the 22 body joints), mean global rotation error per
-part (degrees); no alignment of any kind: the fitted body is placed by the model itself.
+part (degrees); no alignment of any kind: the fitted body is placed by the model itself. With
+``data.view_splits=[front,side,back,top]`` (any subset) the cached single-view test sets are evaluated too,
+after the full-surface ones: ``metrics.json`` gets ``test_view_<view>`` entries, ``metrics.md`` their columns.
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ log = logging.getLogger("arteq.eval")
 
 
 def test_module(module: ArtEqModule, datamodule, trainer: L.Trainer, ckpt_path: str | None = None) -> dict:
-    """Run ``trainer.test`` on [test_id, test_ood]; return ``{split: {metric: value}}``."""
+    """Run ``trainer.test`` on the datamodule's test sets (``data.test_splits``, then the single-view sets of
+    ``data.view_splits``); return ``{split: {metric: value}}``."""
     trainer.test(module, datamodule=datamodule, ckpt_path=ckpt_path or None, verbose=False)
     return module.test_results
 

@@ -28,6 +28,13 @@ if TYPE_CHECKING:  # annotations only: importing this module does not import tor
 #: The evaluation splits, in the order the datamodule returns their loaders: ID, the hard OOD set, then
 #: the graded OOD scale (one / two limbs out of distribution, OOD poses without self-contact).
 TEST_SPLITS = ("test_id", "test_ood", "test_ood_limb1", "test_ood_limb2", "test_ood_contact")
+#: The cached single-view test sets (``data.view_splits``, :mod:`arteq.data.single_view`): the ID test
+#: bodies each seen by one depth camera from the front, a side, behind or above, in this order. Their names
+#: in ``data.view_splits``: :data:`VIEW_NAMES` or the split names (see :func:`view_split`).
+VIEW_NAMES = ("front", "side", "back", "top")
+VIEW_SPLITS = tuple(f"test_view_{v}" for v in VIEW_NAMES)
+#: Every split a test loop can report, in table order: the full-surface sets, then the view sets.
+ALL_TEST_SPLITS = (*TEST_SPLITS, *VIEW_SPLITS)
 #: The paper's two test sets: ID and the hard OOD set (the columns of its tables, the model cards' subsets).
 PAPER_SPLITS = ("test_id", "test_ood")
 #: Scalar metrics of :class:`arteq.training.metrics.BodyFitMetrics`, in table order.
@@ -36,6 +43,8 @@ METRIC_KEYS = ("part_acc", "v2v_cm", "mpjpe_cm", "rot_err_deg")
 SPLIT_LABELS = {
     "test_id": "ID", "test_ood": "OOD", "test_ood_limb1": "OOD-1limb", "test_ood_limb2": "OOD-2limb",
     "test_ood_contact": "OOD-nocontact",
+    "test_view_front": "front-view", "test_view_side": "side-view", "test_view_back": "back-view",
+    "test_view_top": "top-view",
 }  # fmt: skip
 #: Unit line under every metrics table.
 UNITS_NOTE = "part_acc in %, v2v/mpjpe in cm (MPJPE over the 22 body joints), rot_err in degrees."
@@ -74,6 +83,15 @@ class BodyFitResult:
 
     def __getitem__(self, key: str) -> Any:  # dict-style access: result["pose"]
         return getattr(self, key)
+
+
+def view_split(name: Any) -> str | None:
+    """The view test set ``name`` names in ``data.view_splits``: ``front`` or ``test_view_front`` ->
+    ``test_view_front`` (:data:`VIEW_SPLITS`); None for anything else."""
+    if not isinstance(name, str):
+        return None
+    split = name if name.startswith("test_view_") else f"test_view_{name}"
+    return split if split in VIEW_SPLITS else None
 
 
 def _number(x: Any) -> float:
@@ -153,8 +171,8 @@ def format_value(x: Any, digits: int = 2) -> str:
 
 def metrics_table(rows: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str:
     """Markdown table: one row per method (``{name: results}``), a column per metric and split (the splits
-    of :data:`TEST_SPLITS` that some row has)."""
-    splits = [s for s in TEST_SPLITS if any(s in res for res in rows.values())] or list(PAPER_SPLITS)
+    of :data:`ALL_TEST_SPLITS` that some row has: the view sets after the full-surface ones)."""
+    splits = [s for s in ALL_TEST_SPLITS if any(s in res for res in rows.values())] or list(PAPER_SPLITS)
     head = "| method | " + " | ".join(f"{SPLIT_LABELS[s]} {m}" for m in METRIC_KEYS for s in splits) + " |"
     lines = [head, "|---|" + "---:|" * (len(METRIC_KEYS) * len(splits))]
     for name, res in rows.items():

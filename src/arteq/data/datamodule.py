@@ -11,7 +11,8 @@
   are what one depth camera at a random position sees (default 0: full surfaces only); ``view_splits``
   (default none) names cached single-view test sets, ``test_view_front`` / ``_side`` / ``_back`` /
   ``_top``: the same ``test_size`` bodies as drawn for ID testing (their own stream ``test_view``, rotated
-  as ``eval_augment``), each seen from that side; loaders from :meth:`BodyScanDataModule.view_dataloaders`.
+  as ``eval_augment``), each seen from that side; loaders from :meth:`BodyScanDataModule.view_dataloaders`,
+  and run by the test loop after the ``test_splits`` (:meth:`BodyScanDataModule.test_dataloader`).
 - Fixed sets are generated once and cached under ``arteq.paths.cache_dir("datasets")``, keyed by a hash of
   everything that defines them (source, body, sizes, sampling, seed). A cache file holds plain tensors
   plus their SHA-256 and sample count (read with ``torch.load(weights_only=True)``); a file that is
@@ -68,7 +69,7 @@ from arteq.data.shapes import make_shape_prior
 from arteq.data.single_view import VIEW_SPLITS, SingleViewConfig, SingleViewDataset
 from arteq.geometry.pointops import fps_from_centroid
 from arteq.paths import cache_dir
-from arteq.results import TEST_SPLITS
+from arteq.results import TEST_SPLITS, VIEW_NAMES, view_split
 from arteq.runtime import one_thread
 
 log = logging.getLogger(__name__)
@@ -247,7 +248,8 @@ class BodyScanDataModule(L.LightningDataModule):
         net: the network config (``model.net``) that ``fps_points: auto`` is resolved against.
         single_view: the camera and sensor of single-view scans (:class:`arteq.data.single_view.
             SingleViewConfig` fields; ``prob``: share of training clouds that are single-view scans).
-        view_splits: cached single-view test sets to build (:data:`arteq.data.single_view.VIEW_SPLITS`).
+        view_splits: cached single-view test sets to build and test on, after ``test_splits``
+            (:data:`arteq.results.VIEW_SPLITS`, named so or by view: ``front`` = ``test_view_front``).
     """
 
     def __init__(
@@ -302,11 +304,13 @@ class BodyScanDataModule(L.LightningDataModule):
             )
         self.test_splits = tuple(t for t in TEST_SPLITS if t in test_splits)
         view_splits = tuple(to_plain(view_splits) or ())
-        if any(v not in VIEW_SPLITS for v in view_splits):
+        if any(view_split(v) is None for v in view_splits):
             raise ValueError(
-                f"data.view_splits must be a subset of {list(VIEW_SPLITS)}, got {list(view_splits)}"
+                f"data.view_splits must be a subset of {list(VIEW_NAMES)} (or their split names "
+                f"{list(VIEW_SPLITS)}), got {list(view_splits)}"
             )
-        self.view_splits = tuple(v for v in VIEW_SPLITS if v in view_splits)
+        named = {view_split(v) for v in view_splits}
+        self.view_splits = tuple(v for v in VIEW_SPLITS if v in named)
         self.single_view = SingleViewConfig.from_mapping(to_plain(single_view))
         if not 0.0 <= float(wide_poses) <= 1.0:
             raise ValueError(f"data.wide_poses is a probability in [0, 1], got {wide_poses}")
@@ -483,7 +487,7 @@ class BodyScanDataModule(L.LightningDataModule):
         return {
             "fit": ("val",),
             "validate": ("val",),
-            "test": self.test_splits,
+            "test": self.test_loader_splits,
             "predict": self.test_splits,
         }.get(stage or "", EVAL_SPLITS)
 
@@ -501,7 +505,7 @@ class BodyScanDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         want = ("train", "val") if stage == "fit" else self._fixed_splits_for(stage)
         if stage is None:
-            want = ("train", "val", *self.test_splits)
+            want = ("train", "val", *self.test_loader_splits)
         for split in want:
             if split in self.datasets:
                 continue
@@ -567,9 +571,15 @@ class BodyScanDataModule(L.LightningDataModule):
     def val_dataloader(self) -> DataLoader:
         return self._eval_loader("val")
 
+    @property
+    def test_loader_splits(self) -> tuple[str, ...]:
+        """Names of :meth:`test_dataloader`'s loaders, in order: ``test_splits``, then ``view_splits``."""
+        return (*self.test_splits, *self.view_splits)
+
     def test_dataloader(self) -> list[DataLoader]:
-        """One loader per test set of ``test_splits`` (in the order of ``arteq.results.TEST_SPLITS``)."""
-        return [self._eval_loader(s) for s in self.test_splits]
+        """One loader per test set of ``test_loader_splits``: those of ``test_splits`` (in the order of
+        ``arteq.results.TEST_SPLITS``), then the view sets of ``view_splits`` (``VIEW_SPLITS`` order)."""
+        return [self._eval_loader(s) for s in self.test_loader_splits]
 
     # ------------------------------------------------------------------ resume
     def state_dict(self) -> dict[str, Any]:

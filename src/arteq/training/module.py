@@ -15,7 +15,7 @@ from arteq.io.runs import read_checkpoint
 from arteq.models.placement import body_centroid_matrix, estimate_translation
 from arteq.models.precision import full_precision, upcast
 from arteq.models.registry import build_net
-from arteq.results import TEST_SPLITS, metric_values
+from arteq.results import TEST_SPLITS, VIEW_SPLITS, metric_values
 from arteq.training.losses import DEFAULT_WEIGHTS, arteq_losses
 from arteq.training.metrics import BodyFitMetrics
 from arteq.training.optim import DEFAULT_OPTIMIZER, DEFAULT_SCHEDULER, build_optimizer, build_scheduler
@@ -53,7 +53,8 @@ class ArtEqModule(L.LightningModule):
             module's own: moved with it to its device); not a hyperparameter.
 
     After ``trainer.test``, :attr:`test_results` holds ``{split: {metric: value}}`` (see
-    :mod:`arteq.results`), the values this module logged.
+    :mod:`arteq.results`), the values this module logged: the datamodule's ``test_splits``, then its
+    single-view test sets (``view_splits``, :data:`arteq.results.VIEW_SPLITS`) when it has any.
     """
 
     def __init__(
@@ -107,6 +108,8 @@ class ArtEqModule(L.LightningModule):
 
         self.val_metrics = BodyFitMetrics()
         self.test_metrics = torch.nn.ModuleList([BodyFitMetrics() for _ in TEST_SPLITS])
+        # the single-view test sets' (data.view_splits); metric states are not saved in checkpoints
+        self.view_metrics = torch.nn.ModuleDict({s: BodyFitMetrics() for s in VIEW_SPLITS})
         self.test_results: dict[str, dict[str, Any]] = {}
 
     # ------------------------------------------------------------------ inference
@@ -181,25 +184,32 @@ class ArtEqModule(L.LightningModule):
         self._log_metrics("val", self.val_metrics, prog_bar=True)
 
     def _test_split_names(self) -> tuple[str, ...]:
-        """Names of the test loaders being run, in order: the datamodule's ``test_splits`` (else
-        :data:`arteq.results.TEST_SPLITS`, cut to the number of loaders)."""
+        """Names of the test loaders being run, in order: the datamodule's ``test_loader_splits``
+        (its ``test_splits``, then its ``view_splits``; a datamodule without it: its ``test_splits``, else
+        :data:`arteq.results.TEST_SPLITS`), cut to the number of loaders."""
         loaders = self.trainer.test_dataloaders if self._trainer is not None else None
         n_run = len(loaders) if isinstance(loaders, list | tuple) else 1
         dm = getattr(self._trainer, "datamodule", None) if self._trainer is not None else None
-        names = tuple(getattr(dm, "test_splits", TEST_SPLITS))
+        names = tuple(getattr(dm, "test_loader_splits", None) or getattr(dm, "test_splits", TEST_SPLITS))
         return names[:n_run] if len(names) >= n_run else TEST_SPLITS[:n_run]
+
+    def _test_metric(self, split: str) -> BodyFitMetrics:
+        """The metric object of a test split (:data:`~arteq.results.TEST_SPLITS` or ``VIEW_SPLITS``)."""
+        if split in self.view_metrics:
+            return self.view_metrics[split]
+        return self.test_metrics[TEST_SPLITS.index(split)]
 
     def test_step(self, batch, batch_idx, dataloader_idx: int = 0):
         pred, gt, _ = self._step(batch, use_gt_parts=False)
         split = self._test_split_names()[dataloader_idx]
-        self._update(self.test_metrics[TEST_SPLITS.index(split)], pred, gt)
+        self._update(self._test_metric(split), pred, gt)
 
     def on_test_epoch_end(self):
         # Every rank computes every split that was run (even one whose shard of the set was empty):
         # compute() gathers the metric states of all ranks, so all of them must take part.
         self.test_results = {}
         for split in self._test_split_names():
-            self.test_results[split] = self._log_metrics(split, self.test_metrics[TEST_SPLITS.index(split)])
+            self.test_results[split] = self._log_metrics(split, self._test_metric(split))
 
     def _log_metrics(self, split: str, metric: BodyFitMetrics, prog_bar: bool = False) -> dict[str, Any]:
         """Log a split's metrics and return them as results (the logged float32 values)."""

@@ -21,7 +21,7 @@ from arteq.body.model import ANNY_BODIES, BODY_NAMES
 from arteq.data.dataset import AUGMENTS
 from arteq.models.heads import PARENT_MODES
 from arteq.models.registry import ARCHITECTURES, DEFAULT_ARCH
-from arteq.results import TEST_SPLITS
+from arteq.results import TEST_SPLITS, VIEW_NAMES, view_split
 from arteq.training import optim
 from arteq.training.losses import DEFAULT_WEIGHTS
 
@@ -189,6 +189,12 @@ def validate_data(cfg: DictConfig, processes: int | None = None) -> None:
         not isinstance(splits, list) or not splits or any(s not in TEST_SPLITS for s in splits)
     ):
         raise ConfigError("data.test_splits", splits, f"a non-empty list of {' | '.join(TEST_SPLITS)}")
+    views = _get(cfg, "data.view_splits")
+    if views is not None and (not isinstance(views, list) or any(view_split(v) is None for v in views)):
+        raise ConfigError(
+            "data.view_splits", views,
+            f"a list of {' | '.join(VIEW_NAMES)} (or test_view_<view>), [] = none: the single-view test sets",
+        )  # fmt: skip
     synthetic = source == "synthetic"
     sizes = {}
     for key in ("train_size", "val_size", "test_size"):
