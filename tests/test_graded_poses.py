@@ -109,3 +109,40 @@ def test_datamodule_runs_the_chosen_test_sets_in_order(toy_body, tmp_path):
     assert set(dm.test_splits) <= set(TEST_SPLITS)
     with pytest.raises(ValueError, match="test_splits"):
         BodyScanDataModule(body_model=toy_body, test_splits=["test_nowhere"])
+
+
+def test_training_pose_mix_draws_each_source_at_its_weight_and_leaves_tests_alone(toy_body):
+    mixed = BodyScanDataModule(
+        body_model=toy_body, train_pose_mix={"id": 0.5, "ood": 0.3, "limb2": 0.2, "contact": 0.0}, cache=False
+    )
+    src = mixed._sources("train")
+    assert src.weights == pytest.approx({"id": 0.5, "ood": 0.3, "limb2": 0.2})  # zero weights dropped
+    g = torch.Generator().manual_seed(0)
+    picks = [src.pick(g) for _ in range(2000)]
+    for name, w in src.weights.items():
+        assert abs(picks.count(name) / len(picks) - w) < 0.04
+    # a draw is the chosen source's own draw from the same generator state
+    for seed in range(6):
+        g = torch.Generator().manual_seed(seed)
+        name = src.pick(g)
+        want = src.sources[name].sample(0, g)["pose"]
+        got = src.sample(0, torch.Generator().manual_seed(seed))["pose"]
+        torch.testing.assert_close(got, want, rtol=0, atol=0)
+    # OOD picks are far from everyday poses, the ID picks are not
+    ood = SyntheticOODPoses()
+    assert src.fingerprint() != SyntheticIDPoses().fingerprint()
+    plain = BodyScanDataModule(body_model=toy_body, cache=False)
+    for split in ("val", *TEST_SPLITS):
+        assert mixed._sources(split).fingerprint() == plain._sources(split).fingerprint()
+    assert plain._sources("train").fingerprint() == SyntheticIDPoses().fingerprint()
+    assert ood.fingerprint() == mixed._sources("test_ood").fingerprint()
+
+
+@pytest.mark.parametrize(
+    "mix, match",
+    [({"pose_prior": 1.0}, "unknown sources"), ({"id": -1.0}, ">= 0"), ({"id": 0.0}, "not all 0"),
+     ([0.5, 0.5], "mapping"), ({"id": "many"}, "numbers")],
+)  # fmt: skip
+def test_training_pose_mix_is_checked(toy_body, mix, match):
+    with pytest.raises(ValueError, match=match):
+        BodyScanDataModule(body_model=toy_body, train_pose_mix=mix)

@@ -39,6 +39,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -61,6 +62,7 @@ from arteq.data.dataset import (
 from arteq.data.poses import (
     ContactRejectedPoses,
     LimbOODPoses,
+    MixedPoses,
     PoseSource,
     SyntheticIDPoses,
     SyntheticOODPoses,
@@ -80,6 +82,10 @@ EVAL_SPLITS = ("val", *TEST_SPLITS)
 GRADED_SPLITS = ("test_ood_limb1", "test_ood_limb2", "test_ood_contact")
 #: Their size when ``test_size`` is null (AMASS: every frame of the real test sets).
 GRADED_DEFAULT_SIZE = 128
+#: Sources a training pose mixture (``train_pose_mix``) may draw from: ``id`` = the configured training
+#: poses (synthetic everyday motions, widened by ``wide_poses``, or the AMASS training frames), the others
+#: the synthetic samplers of the OOD test sets (their own random streams: the test sets stay held out).
+TRAIN_MIX_SOURCES = ("id", "ood", "limb1", "limb2", "contact")
 
 
 class CorruptCacheError(RuntimeError):
@@ -233,6 +239,10 @@ class BodyScanDataModule(L.LightningDataModule):
         wide_poses: probability that a synthetic training pose is widened at the collars, shoulders,
             elbows, wrists, neck and head (:data:`arteq.data.poses.WIDE_ID_RANGES_DEG`); val / test_id keep
             the narrow everyday motions.
+        train_pose_mix: ``null`` (train on the ID poses) or weights over :data:`TRAIN_MIX_SOURCES`, e.g.
+            ``{id: 0.4, ood: 0.4, limb1: 0.1, limb2: 0.1}``: each training pose comes from one of them
+            (:class:`arteq.data.poses.MixedPoses`), for a model meant for any pose (the scan-fitting model).
+            Validation and the test sets are unchanged.
         test_splits: the test sets to run, a subset of :data:`arteq.results.TEST_SPLITS` (default all).
         train_size: samples per epoch (``null`` with AMASS: number of training frames).
         val_size, test_size: fixed set sizes (``null`` with AMASS: all frames of the split; the graded OOD
@@ -269,6 +279,7 @@ class BodyScanDataModule(L.LightningDataModule):
         augment: str = "none",
         eval_augment: str = "none",
         wide_poses: float = 0.0,
+        train_pose_mix: Mapping[str, float] | None = None,
         test_splits: list[str] | tuple[str, ...] | None = None,
         train_size: int | None = 2000,
         val_size: int | None = 64,
@@ -315,6 +326,7 @@ class BodyScanDataModule(L.LightningDataModule):
         if not 0.0 <= float(wide_poses) <= 1.0:
             raise ValueError(f"data.wide_poses is a probability in [0, 1], got {wide_poses}")
         self.wide_poses = float(wide_poses)
+        self.train_pose_mix = self._check_pose_mix(to_plain(train_pose_mix))
         self.fps_points = resolve_fps_points(fps_points, net, int(num_points))
         if self.fps_points > num_points:
             raise ValueError(f"data.fps_points={self.fps_points} is more than data.num_points={num_points}")
@@ -362,7 +374,37 @@ class BodyScanDataModule(L.LightningDataModule):
             self._body = create_body(self.body_model_cfg).eval()
         return self._body
 
+    @staticmethod
+    def _check_pose_mix(mix: Any) -> dict[str, float] | None:
+        if mix is None:
+            return None
+        if not isinstance(mix, Mapping) or not mix:
+            raise ValueError(f"data.train_pose_mix must be null or a mapping of weights, got {mix!r}")
+        unknown = [k for k in mix if k not in TRAIN_MIX_SOURCES]
+        if unknown:
+            raise ValueError(f"data.train_pose_mix: unknown sources {unknown}; known: {list(TRAIN_MIX_SOURCES)}")
+        try:
+            weights = {str(k): float(v) for k, v in mix.items()}
+        except (TypeError, ValueError):
+            raise ValueError(f"data.train_pose_mix: weights must be numbers, got {dict(mix)}") from None
+        if any(not (w >= 0 and math.isfinite(w)) for w in weights.values()) or sum(weights.values()) <= 0:
+            raise ValueError(f"data.train_pose_mix: weights must be finite, >= 0 and not all 0, got {weights}")
+        return weights
+
     def _sources(self, split: str) -> PoseSource:
+        if split == "train" and self.train_pose_mix is not None:
+            named = {
+                "id": lambda: self._base_source("train"),
+                "ood": SyntheticOODPoses,
+                "limb1": lambda: LimbOODPoses(1),
+                "limb2": lambda: LimbOODPoses(2),
+                "contact": lambda: ContactRejectedPoses(self.body),
+            }
+            mix = {k: w for k, w in self.train_pose_mix.items() if w > 0}
+            return MixedPoses({k: named[k]() for k in mix}, mix)
+        return self._base_source(split)
+
+    def _base_source(self, split: str) -> PoseSource:
         if split == "test_ood_limb1" or split == "test_ood_limb2":
             return LimbOODPoses(int(split[-1]))
         if split == "test_ood_contact":

@@ -609,6 +609,46 @@ class ContactRejectedPoses(PoseSource):
         )
 
 
+class MixedPoses(PoseSource):
+    """Each draw from one of several pose sources, picked with fixed probabilities: training on a broad
+    pose distribution (``data.train_pose_mix``, e.g. everyday motions mixed with the OOD sampler).
+
+    ``sources`` and ``weights`` are keyed alike; weights are non-negative and normalised. The pick uses
+    the sample's own generator, so a draw is reproducible from its seed. When ``sources`` holds ``id``
+    with a finite length (AMASS frames), the mixture has that length and an ``id`` pick returns frame
+    ``index``; otherwise it is infinite.
+    """
+
+    def __init__(self, sources: dict[str, PoseSource], weights: dict[str, float]) -> None:
+        if set(sources) != set(weights):
+            raise ValueError(f"MixedPoses: sources {sorted(sources)} and weights {sorted(weights)} differ")
+        bad = {k: w for k, w in weights.items() if not (float(w) >= 0 and math.isfinite(float(w)))}
+        if bad or not sources or sum(float(w) for w in weights.values()) <= 0:
+            raise ValueError(f"MixedPoses: weights must be finite, >= 0 and not all 0, got {dict(weights)}")
+        self.names = [k for k in sources if float(weights[k]) > 0]
+        self.sources = {k: sources[k] for k in self.names}
+        total = sum(float(weights[k]) for k in self.names)
+        self.weights = {k: float(weights[k]) / total for k in self.names}
+        self._cum = torch.tensor([self.weights[k] for k in self.names], dtype=torch.float64).cumsum(0)
+        self.num_poses = self.sources["id"].num_poses if "id" in self.sources else None
+
+    def fingerprint(self) -> dict:
+        return {
+            "class": "MixedPoses",
+            "weights": self.weights,
+            "sources": {k: s.fingerprint() for k, s in self.sources.items()},
+            "version": 1,
+        }
+
+    def pick(self, generator: torch.Generator) -> str:
+        u = float(torch.rand((), generator=generator, dtype=torch.float64))
+        i = int(torch.searchsorted(self._cum, torch.tensor(u, dtype=torch.float64), right=True))
+        return self.names[min(i, len(self.names) - 1)]
+
+    def sample(self, index: int, generator: torch.Generator) -> dict:
+        return self.sources[self.pick(generator)].sample(index, generator)
+
+
 # ----------------------------------------------------------------------------------------------
 # Distances between pose sets
 

@@ -28,12 +28,13 @@ log = logging.getLogger("arteq.train")
 
 #: Data settings a found stage-1 checkpoint must share with the stage-2 run (what the clouds look like).
 STAGE1_DATA_KEYS = ("source", "num_points", "augment", "noise_std", "density_contrast", "density_wavelength",
-                    "beta_scale", "amass_root", "amass", "wide_poses", "shape_prior")  # fmt: skip
+                    "beta_scale", "amass_root", "amass", "wide_poses", "shape_prior",
+                    "train_pose_mix")  # fmt: skip
 #: Values that settings added after a checkpoint was written have when it does not name them: an older
 #: stage-1 checkpoint matches a config that sets them so (what the network / data did before the option).
 ADDED_DEFAULTS = {
     "net": {"backbone": {"normalize": False}, "pose_head": {"logit_eps": None, "geometry": False}},
-    "data": {"wide_poses": 0.0, "shape_prior": "normal"},
+    "data": {"wide_poses": 0.0, "shape_prior": "normal", "train_pose_mix": None},
 }
 #: Environment variable through which rank 0 hands its run plan to the ranks Lightning launches.
 PLAN_ENV = "ARTEQ_RUN_PLAN"
