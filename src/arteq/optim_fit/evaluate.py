@@ -28,6 +28,16 @@ from arteq.training.metrics import BodyFitMetrics
 log = logging.getLogger("arteq.optim_fit")
 
 
+def loader_split_names(datamodule) -> tuple[str, ...]:
+    """The split name of each of ``datamodule.test_dataloader()``'s loaders, in order: the datamodule's
+    ``test_loader_splits`` when it has them, else its ``test_splits`` then ``view_splits`` (the chosen
+    subset, not all of :data:`TEST_SPLITS`), else :data:`TEST_SPLITS`."""
+    names = getattr(datamodule, "test_loader_splits", None)
+    if names is None:
+        names = (*getattr(datamodule, "test_splits", TEST_SPLITS), *getattr(datamodule, "view_splits", ()))
+    return tuple(names)
+
+
 def evaluate_fitter(
     datamodule,
     body: torch.nn.Module,
@@ -42,7 +52,13 @@ def evaluate_fitter(
     """
     datamodule.setup("test")
     out: dict[str, Any] = {"metrics": {}, "fit": {}}
-    for split, loader in zip(TEST_SPLITS, datamodule.test_dataloader()):
+    loaders = datamodule.test_dataloader()
+    names = loader_split_names(datamodule)
+    if len(names) != len(loaders):
+        raise ValueError(
+            f"the datamodule gave {len(loaders)} test loaders for the {len(names)} splits {list(names)}"
+        )
+    for split, loader in zip(names, loaders):
         metric = BodyFitMetrics()
         seconds, iters, n = 0.0, [], 0
         for batch in loader:
