@@ -35,6 +35,8 @@ def test_default_and_paper_configs_are_valid():
     validate_train_config(_cfg("+experiment=paper"))
     validate_train_config(_cfg("model=pointnet2"))
     validate_train_config(_cfg("trainer=ddp", "trainer.devices=2"))
+    validate_train_config(_cfg("body_model=anny_allages", "data.shape_prior=allages",
+                               "data.train_pose_mix={id:0.4,ood:0.4,limb1:0.1,limb2:0.1}"))  # fmt: skip
 
 
 @pytest.mark.parametrize(
@@ -56,6 +58,10 @@ def test_default_and_paper_configs_are_valid():
         ("stage=3", "stage=3", "1 (ground-truth"),
         ("callbacks.step_checkpoint.every_n_train_steps=-5", "every_n_train_steps=-5", ">= 0"),
         ("resume=sometimes", "resume='sometimes'", "auto"),
+        ("data.shape_prior=adults", "data.shape_prior='adults'", "normal | allages"),
+        ("data.shape_prior=allages", "data.shape_prior='allages'", "use body_model=anny_allages"),
+        ("data.train_pose_mix={id:1,extreme:1}", "data.train_pose_mix=", "id | ood | limb1 | limb2 | contact"),
+        ("data.train_pose_mix={id:-1}", "data.train_pose_mix=", "weights >= 0"),
     ],
 )  # fmt: skip
 def test_bad_value_names_key_and_allowed_values(override, key, allowed):

@@ -18,7 +18,9 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue
 
 from arteq.body.model import ANNY_BODIES, BODY_NAMES
+from arteq.data.datamodule import TRAIN_MIX_SOURCES
 from arteq.data.dataset import AUGMENTS
+from arteq.data.shapes import SHAPE_PRIORS
 from arteq.models.heads import PARENT_MODES
 from arteq.models.registry import ARCHITECTURES, DEFAULT_ARCH
 from arteq.results import TEST_SPLITS, VIEW_NAMES, view_split
@@ -184,6 +186,25 @@ def validate_data(cfg: DictConfig, processes: int | None = None) -> None:
         raise ConfigError("data.noise_std", noise, "metres in [0, 0.05) (e.g. 0.001 = 1 mm)")
     _one_of(cfg, "data.augment", AUGMENTS)
     _one_of(cfg, "data.eval_augment", AUGMENTS)
+    if _one_of(cfg, "data.shape_prior", SHAPE_PRIORS, "normal") == "allages":
+        body = _get(cfg, "body_model.name")
+        if body != "anny_allages":
+            raise ConfigError(
+                "data.shape_prior", "allages",
+                f"normal with body_model={body}: allages draws the all-ages body's stored shapes "
+                "(use body_model=anny_allages)",
+            )  # fmt: skip
+    mix = _get(cfg, "data.train_pose_mix")
+    if mix is not None:
+        ok = isinstance(mix, dict) and mix and all(k in TRAIN_MIX_SOURCES for k in mix)
+        ok = ok and all(isinstance(w, int | float) and not isinstance(w, bool) for w in mix.values())
+        ok = ok and all(math.isfinite(w) and w >= 0 for w in mix.values()) and sum(mix.values()) > 0
+        if not ok:
+            raise ConfigError(
+                "data.train_pose_mix", mix,
+                f"null, or weights >= 0 (not all 0) over {' | '.join(TRAIN_MIX_SOURCES)}, "
+                "e.g. {id: 0.4, ood: 0.4, limb1: 0.1, limb2: 0.1}",
+            )  # fmt: skip
     splits = _get(cfg, "data.test_splits")
     if splits is not None and (
         not isinstance(splits, list) or not splits or any(s not in TEST_SPLITS for s in splits)
