@@ -382,13 +382,17 @@ class BodyScanDataModule(L.LightningDataModule):
             raise ValueError(f"data.train_pose_mix must be null or a mapping of weights, got {mix!r}")
         unknown = [k for k in mix if k not in TRAIN_MIX_SOURCES]
         if unknown:
-            raise ValueError(f"data.train_pose_mix: unknown sources {unknown}; known: {list(TRAIN_MIX_SOURCES)}")
+            raise ValueError(
+                f"data.train_pose_mix: unknown sources {unknown}; known: {list(TRAIN_MIX_SOURCES)}"
+            )
         try:
             weights = {str(k): float(v) for k, v in mix.items()}
         except (TypeError, ValueError):
             raise ValueError(f"data.train_pose_mix: weights must be numbers, got {dict(mix)}") from None
         if any(not (w >= 0 and math.isfinite(w)) for w in weights.values()) or sum(weights.values()) <= 0:
-            raise ValueError(f"data.train_pose_mix: weights must be finite, >= 0 and not all 0, got {weights}")
+            raise ValueError(
+                f"data.train_pose_mix: weights must be finite, >= 0 and not all 0, got {weights}"
+            )
         return weights
 
     def _sources(self, split: str) -> PoseSource:
