@@ -43,6 +43,10 @@ def test_a_png_in_millimetres_back_projects_onto_the_surface(body_depth, tmp_pat
     assert scan.points.shape == truth.shape and scan.pixels_kept == len(truth)
     assert np.abs(scan.points - truth).max() < 0.0006  # millimetre rounding (0.5 mm), nothing else
     np.testing.assert_array_equal(scan.viewpoint, np.zeros(3))
+    # each point's pixel: its depth there, and the image's surface pixels in row-major order
+    v, u = scan.pixels.T
+    assert np.abs(scan.points[:, 2] - depth[v, u]).max() < 0.0006
+    np.testing.assert_array_equal(scan.pixels, np.argwhere(np.isfinite(depth)))
 
 
 def test_npy_in_metres_with_intrinsics_from_a_json_beside_it(body_depth, tmp_path):

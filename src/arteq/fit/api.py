@@ -449,7 +449,8 @@ class Fitter:
         if self.clean:
             # units first (a millimetre file read as metres is not a room to clean), loosely: the room counts
             check_body_size(metres, name, units, limits_m=(0.4, 8.0))
-            cleaned = clean_scan(metres, self.clean_config)
+            camera = None if viewpoint is None else np.asarray(viewpoint, float) * scale
+            cleaned = clean_scan(metres, self.clean_config, viewpoint=camera)  # plane bands grow with range
             clutter[keep] = cleaned.codes
             if cleaned.keep.sum() < MIN_POINTS:
                 raise ScanError(

@@ -11,6 +11,17 @@ standard means (metres, any orientation: nothing assumes an up axis):
    least ``plane_min_extent_m`` along both of their in-plane principal axes and fill at least
    ``plane_min_fill`` of their convex hull (occupied 5 cm cells, larger for sparse clouds). Up to
    ``max_planes``.
+
+   **Noisy planes** (``plane_adaptive``): depth cameras' noise grows with distance (1 mm + 1 mm/m^2 z^2:
+   2 cm at 4.5 m), and a far wall's residuals then fill the 2 cm search band. When the camera is known
+   (``viewpoint``: a depth image), and for any plane whose residuals are too spread for the fixed bands,
+   the band is the plane's own: refit on the inliers, band = ``plane_noise_k`` robust standard deviations
+   of their residuals, repeated until it settles (at most ``plane_band_max_m``); with the camera known the
+   spread is measured in ``plane_range_bins`` equal-count bins of distance from it and interpolated, so
+   the band is narrow by the feet and wide on the far wall. A surface's noise settles there; a slice
+   through a volume grows the band and still fails the peakedness test (its residuals over the band).
+   The floor takes of the feet only what lies within its band there (the soles). Full scans without a
+   camera whose planes the fixed bands hold are cleaned exactly as without this.
 2. **statistical outliers** (``outlier``): mean distance to the ``sor_k`` nearest neighbours above the
    median by more than ``sor_sigmas`` robust standard deviations (1.4826 MAD) and more than
    ``sor_min_ratio`` times the median (scans are sampled unevenly: sparse patches of a body are not
@@ -22,10 +33,14 @@ standard means (metres, any orientation: nothing assumes an up axis):
    body-sized (at least ``second_body_frac`` of the largest's points and ``second_body_extent_m``
    across) is *not* clutter: the scan is flagged ``second_body`` (two people, or a person next to a
    large object), which the fit turns into the status ``not_single_body`` unless the check is off.
+   In one camera's view (``viewpoint`` given) the body's own parts can lie beyond occlusion edges (a
+   bent-over torso hides the waist; a leg behind the other, and its foot beyond it): components within
+   ``occlusion_gap_m`` of the body, and of those, and so on, are the body.
 
 Clouds larger than ``max_points`` are cleaned on a random subset of that size and every point takes the
 label of its nearest subset point. Every input point gets a code (:data:`CODES`); counts and planes go to
-the ``.npz`` and the summary. Measured on generated cluttered scans: experiments/fitting/README.md.
+the ``.npz`` and the summary. Measured on generated cluttered scans: experiments/fitting/README.md; on
+noisy depth images of a person in a room: experiments/single_view/README.md.
 """
 
 from __future__ import annotations
@@ -48,6 +63,11 @@ class CleanConfig:
     plane_search_band_m: float = 0.02
     plane_band_range_m: tuple[float, float] = (0.008, 0.025)
     plane_max_sigma_frac: float = 0.45
+    plane_adaptive: bool = True
+    plane_noise_k: float = 3.0
+    plane_band_max_m: float = 0.12
+    plane_range_bins: int = 8
+    plane_adapt_iters: int = 8
     plane_min_points_frac: float = 0.03
     plane_min_extent_m: float = 0.8
     plane_min_fill: float = 0.7
@@ -61,6 +81,7 @@ class CleanConfig:
     keep_near_m: float = 0.2
     second_body_frac: float = 0.25
     second_body_extent_m: float = 0.8
+    occlusion_gap_m: float = 0.25
     max_points: int = 30000
     seed: int = 0
 
@@ -108,8 +129,69 @@ def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.cross(n, u)
 
 
-def _find_plane(pts: np.ndarray, cfg: CleanConfig, rng: np.random.Generator) -> dict | None:
-    """Best RANSAC plane of ``pts`` that looks like a floor or wall, or None."""
+def _robust_sigma(r: np.ndarray) -> float:
+    return 1.4826 * float(np.median(np.abs(r - np.median(r))))
+
+
+def _noise_band(r: np.ndarray, inl: np.ndarray, ranges: np.ndarray | None, cfg: CleanConfig) -> np.ndarray:
+    """``[N]`` half-width of the band around a plane: ``plane_noise_k`` robust standard deviations of the
+    residuals ``r`` of the current inliers ``inl``, one for the whole plane (``ranges`` None), else as a
+    function of the distance from the camera (``ranges [N]``): the spread in equal-count range bins,
+    interpolated between their median ranges (held flat beyond the first and last)."""
+    lo, hi = cfg.plane_band_range_m[0], cfg.plane_band_max_m
+    if ranges is None:
+        return np.full(len(r), float(np.clip(cfg.plane_noise_k * _robust_sigma(r[inl]), lo, hi)))
+    idx = np.nonzero(inl)[0]
+    idx = idx[np.argsort(ranges[idx])]
+    bins = np.array_split(idx, max(1, min(cfg.plane_range_bins, len(idx) // 50)))
+    centres = np.array([np.median(ranges[b]) for b in bins])
+    sig = np.array([_robust_sigma(r[b]) for b in bins])
+    band = np.interp(ranges, centres, cfg.plane_noise_k * sig)
+    return np.clip(band, lo, hi)
+
+
+def _refit(pts: np.ndarray, inl: np.ndarray) -> tuple[np.ndarray, float]:
+    c = pts[inl].mean(0)
+    _, _, vt = np.linalg.svd(pts[inl] - c, full_matrices=False)
+    n = vt[2]
+    return n, -float(n @ c)
+
+
+def _adaptive_plane(
+    pts: np.ndarray, n: np.ndarray, d: float, ranges: np.ndarray | None, cfg: CleanConfig
+) -> tuple[np.ndarray, float, np.ndarray, float] | None:
+    """The band of a plane in a noisy scan, from its own residuals: start from the search band, refit on
+    the inliers, set the band to ``plane_noise_k`` robust standard deviations (per range from the camera
+    when ``ranges`` is given), repeat until the band settles. A surface's noise converges there (a normal
+    spread truncated at 3 sigma has a robust sigma of 3 sigma / 3); a slice through a volume, whose
+    residuals fill any band evenly, grows it to ``plane_band_max_m`` and fails the peakedness test
+    (residuals over the band's half-width: robust spread above ``plane_max_sigma_frac``). Returns
+    ``(normal, offset, band [N], peakedness)`` or None."""
+    band = np.full(len(pts), cfg.plane_search_band_m)
+    for _ in range(cfg.plane_adapt_iters):
+        inl = np.abs(pts @ n + d) < band
+        if inl.sum() < 3:
+            return None
+        n, d = _refit(pts, inl)
+        r = pts @ n + d
+        new = _noise_band(r, np.abs(r) < band, ranges, cfg)
+        done = np.allclose(new, band, rtol=0.03, atol=5e-4)
+        band = new
+        if done:
+            break
+    r = pts @ n + d
+    inl = np.abs(r) < band
+    if inl.sum() < 3:
+        return None
+    peak = _robust_sigma(r[inl] / band[inl])
+    return n, d, band, peak
+
+
+def _find_plane(
+    pts: np.ndarray, cfg: CleanConfig, rng: np.random.Generator, ranges: np.ndarray | None = None
+) -> dict | None:
+    """Best RANSAC plane of ``pts`` that looks like a floor or wall, or None. ``ranges [N]``: the points'
+    distances from the camera, when it is known (the band then grows with the distance)."""
     from scipy.spatial import ConvexHull
 
     n_pts = len(pts)
@@ -132,18 +214,29 @@ def _find_plane(pts: np.ndarray, cfg: CleanConfig, rng: np.random.Generator) -> 
             return None
         n, d = normals[best], offsets[best]
         for _ in range(2):  # least-squares refit on the inliers
-            inl = np.abs(pts @ n + d) < cfg.plane_search_band_m
-            c = pts[inl].mean(0)
-            _, _, vt = np.linalg.svd(pts[inl] - c, full_matrices=False)
-            n = vt[2]
-            d = -float(n @ c)
+            n, d = _refit(pts, np.abs(pts @ n + d) < cfg.plane_search_band_m)
         r = pts @ n + d
         near = np.abs(r) < cfg.plane_search_band_m
-        sigma = 1.4826 * float(np.median(np.abs(r[near] - np.median(r[near]))))
-        if sigma > cfg.plane_max_sigma_frac * cfg.plane_search_band_m:
-            continue  # residuals spread over the whole band: a slice through a volume, not a surface
-        band = float(np.clip(3.0 * sigma, *cfg.plane_band_range_m))
-        inl = np.abs(r) < band
+        sigma = _robust_sigma(r[near])
+        peaked = sigma <= cfg.plane_max_sigma_frac * cfg.plane_search_band_m
+        adaptive = None
+        too_noisy = not peaked or 3.0 * sigma > cfg.plane_band_range_m[1]
+        if cfg.plane_adaptive and (ranges is not None or too_noisy):
+            # a depth image (the camera known: the band follows the noise's growth with distance), or a
+            # plane too noisy for the fixed bands: the band from the plane's own noise
+            adaptive = _adaptive_plane(pts, n, d, ranges, cfg)
+            if adaptive is None or adaptive[3] > cfg.plane_max_sigma_frac:
+                continue
+            n, d, band_pts, peak = adaptive
+            r = pts @ n + d
+            inl = np.abs(r) < band_pts
+            band = float(np.median(band_pts[inl]))
+            sigma = _robust_sigma(r[inl])
+        else:
+            if not peaked:
+                continue  # residuals spread over the whole band: a slice through a volume, not a surface
+            band = float(np.clip(3.0 * sigma, *cfg.plane_band_range_m))
+            inl = np.abs(r) < band
         if inl.sum() < min_pts:
             continue
         uv = pts[inl] @ np.stack(_plane_basis(n), 1)
@@ -162,12 +255,35 @@ def _find_plane(pts: np.ndarray, cfg: CleanConfig, rng: np.random.Generator) -> 
         fill = min(1.0, occupied / max(ConvexHull(core).volume, 1e-9))
         if fill < cfg.plane_min_fill:
             continue
-        return {"normal": n, "offset": d, "inliers": inl, "band_m": band, "sigma_m": sigma,
-                "extent_m": extent.tolist(), "fill": float(fill)}  # fmt: skip
+        plane = {"normal": n, "offset": d, "inliers": inl, "band_m": band, "sigma_m": sigma,
+                 "extent_m": extent.tolist(), "fill": float(fill)}  # fmt: skip
+        if adaptive is not None:
+            plane.update(adaptive=True, band_range_m=[float(band_pts[inl].min()), float(band_pts[inl].max())])
+        return plane
     return None
 
 
-def _clean_subset(pts: np.ndarray, cfg: CleanConfig, rng: np.random.Generator) -> CleanResult:
+def _occluded_parts(P: np.ndarray, comp: np.ndarray, body: np.ndarray, gap_m: float) -> np.ndarray:
+    """One camera's view: ``body`` grown by every component that comes within ``gap_m`` of it, and so on
+    (a leg behind the other leg, a foot beyond it: the body's own parts cut off by occlusion edges)."""
+    from scipy.spatial import cKDTree
+
+    body = body.copy()
+    for _ in range(10):
+        rest = np.unique(comp[~body])
+        if not len(rest):
+            break
+        d = cKDTree(P[body]).query(P[~body], k=1, distance_upper_bound=gap_m)[0]
+        near = np.unique(comp[~body][np.isfinite(d)])
+        if not len(near):
+            break
+        body |= np.isin(comp, near)
+    return body
+
+
+def _clean_subset(
+    pts: np.ndarray, cfg: CleanConfig, rng: np.random.Generator, viewpoint: np.ndarray | None = None
+) -> CleanResult:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
@@ -175,10 +291,11 @@ def _clean_subset(pts: np.ndarray, cfg: CleanConfig, rng: np.random.Generator) -
     n = len(pts)
     codes = np.zeros(n, dtype=np.int8)
     planes: list[dict] = []
+    ranges = None if viewpoint is None else np.linalg.norm(pts - np.asarray(viewpoint, float), axis=1)
     if cfg.planes:
         for _ in range(cfg.max_planes):
             alive = np.nonzero(codes == 0)[0]
-            plane = _find_plane(pts[alive], cfg, rng)
+            plane = _find_plane(pts[alive], cfg, rng, None if ranges is None else ranges[alive])
             if plane is None:
                 break
             codes[alive[plane.pop("inliers")]] = CODES["plane"]
@@ -208,11 +325,14 @@ def _clean_subset(pts: np.ndarray, cfg: CleanConfig, rng: np.random.Generator) -
         _, comp = connected_components(graph, directed=False)
         sizes = np.bincount(comp)
         main = int(np.argmax(sizes))
-        main_tree = cKDTree(P[comp == main])
+        body = comp == main
+        if viewpoint is not None:
+            body = _occluded_parts(P, comp, body, cfg.occlusion_gap_m)
+        main_tree = cKDTree(P[body])
         for c in np.argsort(sizes)[::-1]:
-            if c == main:
-                continue
             members = comp == c
+            if c == main or body[members].all():
+                continue
             gap = float(main_tree.query(P[members], k=1)[0].min())
             q = np.percentile(P[members], [2, 98], axis=0)
             ext = float(np.linalg.norm(q[1] - q[0]))
@@ -227,8 +347,12 @@ def _clean_subset(pts: np.ndarray, cfg: CleanConfig, rng: np.random.Generator) -
     return CleanResult(keep=codes == 0, codes=codes, planes=planes, flags=flags, second_cluster=second)
 
 
-def clean_scan(points_m: np.ndarray, config: CleanConfig | None = None) -> CleanResult:
-    """Clutter removal of one cloud ``[N, 3]`` in metres (finite). See the module docstring."""
+def clean_scan(
+    points_m: np.ndarray, config: CleanConfig | None = None, viewpoint: np.ndarray | None = None
+) -> CleanResult:
+    """Clutter removal of one cloud ``[N, 3]`` in metres (finite). ``viewpoint [3]``: the camera's position
+    (metres, the cloud's frame) when it is known, as for a depth image: plane bands then grow with the
+    distance from it. See the module docstring."""
     import time
 
     from scipy.spatial import cKDTree
@@ -239,7 +363,7 @@ def clean_scan(points_m: np.ndarray, config: CleanConfig | None = None) -> Clean
     n = len(points_m)
     if n > cfg.max_points:
         sub = np.sort(rng.choice(n, cfg.max_points, replace=False))
-        res = _clean_subset(points_m[sub], cfg, rng)
+        res = _clean_subset(points_m[sub], cfg, rng, viewpoint)
         _, nn = cKDTree(points_m[sub]).query(points_m, k=1)
         res.codes = res.codes[nn]
         res.keep = res.codes == 0
@@ -247,6 +371,6 @@ def clean_scan(points_m: np.ndarray, config: CleanConfig | None = None) -> Clean
         for p in res.planes:
             p["points"] = int(round(p["points"] * n / cfg.max_points))
     else:
-        res = _clean_subset(points_m, cfg, rng)
+        res = _clean_subset(points_m, cfg, rng, viewpoint)
     res.seconds = time.perf_counter() - t0
     return res

@@ -14,8 +14,10 @@ else automatically, taking the person as the nearest thing in the middle of the 
 percentile of the depths in the image's central third (width and height), and the band
 ``[d0 - auto_band_m[0], d0 + auto_band_m[1]]`` (0.5 m in front, 1.5 m behind: a body, standing or lying,
 and a floor around it that the clean-up removes). The fitter's clutter removal (:mod:`arteq.fit.clean`:
-floor, walls, stray and flying pixels, other objects) runs on what remains, as for any scan. The camera
-sits at the origin of the returned frame (``viewpoint``), which the refinement uses for visibility.
+floor, walls, stray and flying pixels, other objects) runs on what remains, as for any scan, with the
+camera as its viewpoint: plane bands that follow the depth noise's growth with distance, and the body's
+parts beyond occlusion edges kept. The camera sits at the origin of the returned frame (``viewpoint``),
+which the refinement uses for visibility.
 
 PNGs are read with Pillow (installed with matplotlib). Every failure is a :class:`arteq.io.scans.ScanError`
 naming the file.
@@ -53,7 +55,8 @@ class DepthOptions:
 class DepthScan:
     """A depth image turned into points: ``points [N, 3]`` metres in the camera frame (the person's band),
     ``viewpoint [3]`` the camera (the origin), ``intrinsics``, ``image_shape``, ``depth_range_m`` used, and
-    ``pixels_valid`` / ``pixels_kept`` (with a depth / in the band)."""
+    ``pixels_valid`` / ``pixels_kept`` (with a depth / in the band), ``pixels [N, 2]`` each point's pixel
+    ``(row v, column u)``."""
 
     path: Path
     points: np.ndarray
@@ -64,6 +67,7 @@ class DepthScan:
     pixels_valid: int
     pixels_kept: int
     kind: str = "depth"
+    pixels: np.ndarray | None = None
 
 
 def png_format(path: Path) -> tuple[int, int] | None:
@@ -226,6 +230,7 @@ def read_depth(path: str | Path, options: DepthOptions | None = None) -> DepthSc
         depth_range_m=(float(near), float(far)),
         pixels_valid=int(valid.sum()),
         pixels_kept=int(keep.sum()),
+        pixels=np.stack([v, u], 1).astype(np.int32),
     )
 
 
