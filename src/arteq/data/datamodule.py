@@ -53,6 +53,7 @@ from arteq.body.factory import create_body
 from arteq.config import to_plain
 from arteq.data.dataset import (
     AUGMENTS,
+    META_KEYS,
     SAMPLE_KEYS,
     BodyScanDataset,
     EpochSampler,
@@ -92,10 +93,16 @@ class CorruptCacheError(RuntimeError):
     """A cached fixed set failed its checks (unreadable, truncated, wrong checksum or contents)."""
 
 
+def stored_keys(tensors: Mapping[str, Any]) -> tuple[str, ...]:
+    """The keys a fixed set stores: ``SAMPLE_KEYS``, then the ``META_KEYS`` it has (sets drawn with a shape
+    prior that records what body a sample is; the other sets store exactly what they always did)."""
+    return (*SAMPLE_KEYS, *(k for k in META_KEYS if k in tensors))
+
+
 def tensors_digest(tensors: Mapping[str, torch.Tensor]) -> str:
-    """SHA-256 over the sample tensors (key, dtype, shape and bytes, in ``SAMPLE_KEYS`` order)."""
+    """SHA-256 over the sample tensors (key, dtype, shape and bytes, in :func:`stored_keys` order)."""
     h = hashlib.sha256()
-    for k in SAMPLE_KEYS:
+    for k in stored_keys(tensors):
         t = tensors[k].detach().cpu().contiguous()
         h.update(f"{k}|{t.dtype}|{tuple(t.shape)}|".encode())
         h.update(t.numpy().tobytes())
@@ -110,7 +117,7 @@ def write_cache(path: Path, tensors: Mapping[str, torch.Tensor], split: str) -> 
         "split": split,
         "count": int(tensors["points"].shape[0]),
         "sha256": tensors_digest(tensors),
-        "tensors": {k: tensors[k].contiguous() for k in SAMPLE_KEYS},
+        "tensors": {k: tensors[k].contiguous() for k in stored_keys(tensors)},
     }
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{os.urandom(4).hex()}.tmp")
     try:
@@ -138,12 +145,13 @@ def read_cache(path: Path, split: str | None = None) -> dict[str, torch.Tensor]:
     tensors = payload.get("tensors")
     if not isinstance(tensors, dict) or any(k not in tensors for k in SAMPLE_KEYS):
         raise CorruptCacheError("missing sample tensors")
-    counts = {int(tensors[k].shape[0]) for k in SAMPLE_KEYS}
+    keys = stored_keys(tensors)
+    counts = {int(tensors[k].shape[0]) for k in keys}
     if counts != {payload.get("count")}:
         raise CorruptCacheError(f"sample count {sorted(counts)} != recorded {payload.get('count')}")
     if tensors_digest(tensors) != payload.get("sha256"):
         raise CorruptCacheError("checksum mismatch (contents changed after writing)")
-    return {k: tensors[k] for k in SAMPLE_KEYS}
+    return {k: tensors[k] for k in keys}
 
 
 def body_fingerprint(body: torch.nn.Module) -> str:
@@ -471,6 +479,8 @@ class BodyScanDataModule(L.LightningDataModule):
         }
         if isinstance(ds, SingleViewDataset):  # only these keys change: the other sets keep their files
             spec["single_view"] = ds.view_spec()
+        if getattr(ds, "records_shapes", False):  # only the sets storing what body a sample is (allages)
+            spec["shape_meta"] = ds.shapes.meta_spec()
         return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:20]
 
     def cache_path(self, split: str, ds: BodyScanDataset | None = None) -> Path:
@@ -490,7 +500,7 @@ class BodyScanDataModule(L.LightningDataModule):
             it = loader
         for batch in it:
             parts.append(batch)
-        return {k: torch.cat([p[k] for p in parts]) for k in SAMPLE_KEYS}
+        return {k: torch.cat([p[k] for p in parts]) for k in stored_keys(parts[0])}
 
     def _load_checked(self, path: Path, split: str, remove_bad: bool) -> dict[str, torch.Tensor] | None:
         if not path.is_file():

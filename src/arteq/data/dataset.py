@@ -11,7 +11,9 @@ centred frame; a result goes back to the scan frame by adding ``center``.
 
 Sample keys (float32 unless stated): ``points [N,3]`` (centred), ``labels [N]`` int64 (0..21),
 ``pose [22,3,3]`` local rotation matrices (root includes the global orientation), ``global_rotmats
-[22,3,3]``, ``betas [nb]``, ``transl [3]``, ``center [3]``.
+[22,3,3]``, ``betas [nb]``, ``transl [3]``, ``center [3]``. With a shape prior that records what body a
+draw is (``shapes`` with a ``draw`` method: :class:`arteq.data.shapes.StoredShapePrior`), also the
+:data:`META_KEYS` ``shape_index``, ``age_years``, ``build_extreme`` (0-d; see :mod:`arteq.data.shapes`).
 """
 
 from __future__ import annotations
@@ -24,12 +26,15 @@ import torch
 from torch.utils.data import Dataset, Sampler
 
 from arteq.data.poses import PoseSource
+from arteq.data.shapes import SHAPE_META_KEYS, no_shape_meta
 from arteq.geometry.rotations import euler_to_rotmat, random_rotmat
 from arteq.geometry.sampling import interpolate_labels, sample_surface, smooth_density_field
 from arteq.runtime import one_thread
 
 AUGMENTS = ("none", "so3", "z")
 SAMPLE_KEYS = ("points", "labels", "pose", "global_rotmats", "betas", "transl", "center")
+#: Optional per-sample keys: what body a sample is, present when its dataset's shape prior records it.
+META_KEYS = SHAPE_META_KEYS
 
 
 def seeded_generator(*parts: object) -> torch.Generator:
@@ -68,7 +73,8 @@ class BodyScanDataset(Dataset):
         beta_scale: betas ~ N(0, beta_scale^2 I) when the source gives none.
         shapes: draw the betas from this prior instead when the source gives none (an object with
             ``sample(num_betas, generator)``, e.g. :class:`arteq.data.shapes.StoredShapePrior`; None: the
-            normal prior).
+            normal prior). If it also has ``draw(num_betas, generator) -> (betas, meta)``, every sample
+            carries ``meta`` (:data:`META_KEYS`; for betas from the source: unknown, ``shape_index`` -1).
     """
 
     def __init__(
@@ -103,10 +109,29 @@ class BodyScanDataset(Dataset):
     def __len__(self) -> int:
         return self.size
 
+    @property
+    def records_shapes(self) -> bool:
+        """Whether samples carry :data:`META_KEYS` (the shape prior records what body a draw is)."""
+        return self.shapes is not None and callable(getattr(self.shapes, "draw", None))
+
     def _betas(self, src_betas: torch.Tensor | None, generator: torch.Generator) -> torch.Tensor:
+        return self._shape(src_betas, generator)[0]
+
+    def _shape(
+        self, src_betas: torch.Tensor | None, generator: torch.Generator
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor] | None]:
+        """``(betas [nb] float64, meta)``: meta per :data:`META_KEYS` when :attr:`records_shapes`, else None.
+        The same random numbers whichever is asked for."""
         nb = int(self.body.num_betas)
         if src_betas is None and self.shapes is not None:
-            return self.shapes.sample(nb, generator)
+            if self.records_shapes:
+                return self.shapes.draw(nb, generator)
+            return self.shapes.sample(nb, generator), None
+        meta = no_shape_meta() if self.records_shapes else None
+        return self._source_betas(src_betas, generator), meta
+
+    def _source_betas(self, src_betas: torch.Tensor | None, generator: torch.Generator) -> torch.Tensor:
+        nb = int(self.body.num_betas)
         if src_betas is None:
             return torch.randn(nb, generator=generator, dtype=torch.float64) * self.beta_scale
         out = torch.zeros(nb, dtype=torch.float64)
@@ -137,7 +162,7 @@ class BodyScanDataset(Dataset):
             )
         rot = roma.rotvec_to_rotmat(pose.double())
         rot[0] = augmentation_rotation(self.augment, seeded_generator(*key, "aug")) @ rot[0]
-        betas = self._betas(src.get("betas"), seeded_generator(*key, "shape"))
+        betas, meta = self._shape(src.get("betas"), seeded_generator(*key, "shape"))
         scan_transl = src.get("transl")
         scan_transl = torch.zeros(3, dtype=torch.float64) if scan_transl is None else scan_transl.double()
 
@@ -148,7 +173,7 @@ class BodyScanDataset(Dataset):
         verts, grot, pelvis = out.vertices[0], out.global_rotmats[0], out.joints[0, 0]
         points, labels = self._surface_points(verts, self.body.faces, grot, pelvis, key)
         center = points.mean(0)
-        return {
+        sample = {
             "points": (points - center).float(),
             "labels": labels.long(),
             "pose": rot.float(),
@@ -157,6 +182,9 @@ class BodyScanDataset(Dataset):
             "transl": (scan_transl - center.double()).float(),
             "center": center.float(),
         }
+        if meta is not None:
+            sample.update({k: meta[k] for k in META_KEYS})
+        return sample
 
     def _surface_points(
         self, verts: torch.Tensor, faces: torch.Tensor, grot: torch.Tensor, pelvis: torch.Tensor, key: tuple

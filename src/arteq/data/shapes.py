@@ -14,6 +14,14 @@ Anny body. Statures span the samples' (about 0.85-2.0 m).
 
 Used by :class:`arteq.data.dataset.BodyScanDataset` (argument ``shapes``) through
 :class:`arteq.data.BodyScanDataModule` (``shape_prior``); draws are deterministic per sample stream.
+
+What body a draw is: :meth:`StoredShapePrior.draw` also returns the stored sample it started from, and a
+dataset with this prior adds it to every sample (:data:`SHAPE_META_KEYS`): ``shape_index`` (the stored
+sample, -1 when the pose source brought its own betas), ``age_years`` (that sample's age; NaN for -1) and
+``build_extreme`` (1: one of the extreme builds, 0: a typical build, -1: not known). The draws themselves
+are the same as :meth:`~StoredShapePrior.sample`'s, draw for draw. :func:`rest_measurements` gives a body's
+stature, volume, mass and BMI from its rest mesh (the test sets' breakdown per build,
+:mod:`arteq.training.breakdown`).
 """
 
 from __future__ import annotations
@@ -32,6 +40,12 @@ SHAPE_PRIORS = ("normal", "allages")
 AGE_BANDS_YEARS = (0.0, 4.0, 6.0, 9.0, 12.0, 15.0, 18.0, 25.0, 35.0, 50.0, 70.0, 200.0)
 #: Perturbation scale, in units of the band's standard deviations.
 JITTER = 0.25
+#: What a sample drawn with a :class:`StoredShapePrior` records about its body (module docstring).
+SHAPE_META_KEYS = ("shape_index", "age_years", "build_extreme")
+#: Version of those keys in the fixed sets' cache keys (only sets drawn with such a prior carry it).
+SHAPE_META_VERSION = 1
+#: Body density (kg/m^3) of :func:`rest_measurements`: anny's ``Anthropometry`` value.
+BODY_DENSITY = 980.0
 
 
 class StoredShapePrior:
@@ -43,6 +57,8 @@ class StoredShapePrior:
         jitter: perturbation scale (0: the stored samples themselves).
         bands: age band edges in years (increasing); a band with fewer than 2 samples uses all samples.
         name: what the prior is called in fingerprints.
+        extreme: ``[N]`` bool, whether each stored sample is one of the extreme builds (None: not known).
+            Only recorded with the draws (:meth:`draw`); it does not change them.
     """
 
     def __init__(
@@ -52,6 +68,7 @@ class StoredShapePrior:
         jitter: float = JITTER,
         bands: tuple[float, ...] = AGE_BANDS_YEARS,
         name: str = "allages",
+        extreme: np.ndarray | torch.Tensor | None = None,
     ) -> None:
         b = torch.as_tensor(np.asarray(betas), dtype=torch.float64)
         a = torch.as_tensor(np.asarray(ages), dtype=torch.float64)
@@ -67,6 +84,12 @@ class StoredShapePrior:
         if edges.ndim != 1 or len(edges) < 2 or not bool((edges[1:] > edges[:-1]).all()):
             raise ValueError(f"StoredShapePrior: bands must be increasing edges, got {bands}")
         self.betas, self.ages, self.jitter, self.name = b, a, float(jitter), name
+        self.extreme: torch.Tensor | None = None
+        if extreme is not None:
+            e = torch.as_tensor(np.asarray(extreme))
+            if e.shape != (b.shape[0],):
+                raise ValueError(f"StoredShapePrior: extreme must be [{b.shape[0]}], got {list(e.shape)}")
+            self.extreme = e.to(torch.bool)
         self.num_stored = b.shape[1]
         self.band = torch.bucketize(a, edges[1:-1], right=True)  # [N] band of each sample
         k = b.shape[1]
@@ -82,6 +105,13 @@ class StoredShapePrior:
 
     def sample(self, num_betas: int, generator: torch.Generator) -> torch.Tensor:
         """One draw: betas ``[num_betas]`` float64 (the leading block of the stored components)."""
+        return self.draw(num_betas, generator)[0]
+
+    def draw(
+        self, num_betas: int, generator: torch.Generator
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """One draw and what body it is: ``(betas, meta)``, the betas of :meth:`sample` (the same random
+        numbers) and ``meta`` (:data:`SHAPE_META_KEYS`, 0-d tensors) of the stored sample it started from."""
         if not 1 <= num_betas <= self.num_stored:
             raise ValueError(
                 f"{self.name} shape prior: the body has {num_betas} betas, "
@@ -91,7 +121,24 @@ class StoredShapePrior:
         z = torch.randn(num_betas, generator=generator, dtype=torch.float64)
         # the Cholesky factor of a covariance's leading block is the leading block of its factor
         chol = self.chol[self.band[i], :num_betas, :num_betas]
-        return self.betas[i, :num_betas] + self.jitter * (chol @ z)
+        return self.betas[i, :num_betas] + self.jitter * (chol @ z), self.meta(i)
+
+    def meta(self, index: int) -> dict[str, torch.Tensor]:
+        """What stored sample ``index`` is (:data:`SHAPE_META_KEYS`, 0-d tensors)."""
+        extreme = -1 if self.extreme is None else int(self.extreme[index])
+        return {
+            "shape_index": torch.tensor(int(index), dtype=torch.long),
+            "age_years": torch.tensor(float(self.ages[index]), dtype=torch.float32),
+            "build_extreme": torch.tensor(extreme, dtype=torch.long),
+        }
+
+    def meta_spec(self) -> str:
+        """What the recorded metadata depends on beyond :meth:`fingerprint` (the fixed sets' cache keys of
+        this prior's sets name it: they store the metadata)."""
+        if self.extreme is None:
+            return f"v{SHAPE_META_VERSION}(extreme=unknown)"
+        digest = hashlib.sha256(self.extreme.numpy().tobytes()).hexdigest()[:12]
+        return f"v{SHAPE_META_VERSION}(extreme={digest})"
 
     def fingerprint(self) -> str:
         """A string that changes with anything that changes the draws (used in fixed-set cache keys)."""
@@ -112,7 +159,37 @@ class StoredShapePrior:
                 raise ValueError(
                     f"{path}: no stored shape samples ({missing} missing; rebuild the body file)"
                 )
-            return cls(z["sample_betas"], z["sample_ages_years"], jitter=jitter)
+            extreme = z["sample_extreme"] if "sample_extreme" in z.files else None
+            return cls(z["sample_betas"], z["sample_ages_years"], jitter=jitter, extreme=extreme)
+
+
+def no_shape_meta() -> dict[str, torch.Tensor]:
+    """The metadata of a sample whose betas did not come from the prior (the pose source gave them)."""
+    return {
+        "shape_index": torch.tensor(-1, dtype=torch.long),
+        "age_years": torch.tensor(float("nan"), dtype=torch.float32),
+        "build_extreme": torch.tensor(-1, dtype=torch.long),
+    }
+
+
+def rest_measurements(body: Any, betas: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Stature (m), volume (m^3), mass (kg) and BMI (kg/m^2) of bodies ``betas [B, nb]`` in the rest pose.
+
+    As anny's ``Anthropometry`` computes them, on the body's own rest (T-pose) mesh: stature is the vertical
+    (y) extent, volume the enclosed volume of the mesh (signed tetrahedra), mass ``volume * BODY_DENSITY``,
+    BMI ``mass / stature**2``. Each ``[B]`` float64."""
+    with torch.no_grad():
+        dtype = body.v_template.dtype
+        rest, _ = body.shape(betas.to(device=body.v_template.device, dtype=dtype))
+        rest = rest.double()
+        faces = body.faces.to(rest.device).long()
+        v0, v1, v2 = rest[:, faces[:, 0]], rest[:, faces[:, 1]], rest[:, faces[:, 2]]
+        volume = (torch.cross(v0, v1, dim=-1) * v2).sum(-1).sum(-1).abs() / 6.0
+        y = rest[..., 1]
+        stature = y.amax(1) - y.amin(1)
+        mass = volume * BODY_DENSITY
+        bmi = mass / stature.clamp_min(1e-6) ** 2
+    return {"stature_m": stature, "volume_m3": volume, "mass_kg": mass, "bmi": bmi}
 
 
 def make_shape_prior(kind: str, body: Any) -> StoredShapePrior | None:
