@@ -5,6 +5,8 @@ accuracy (%), V2V (cm, all vertices), MPJPE (cm, the 22 body joints), mean globa
 part (degrees); no alignment of any kind: the fitted body is placed by the model itself. With
 ``data.view_splits=[front,side,back,top]`` (any subset) the cached single-view test sets are evaluated too,
 after the full-surface ones: ``metrics.json`` gets ``test_view_<view>`` entries, ``metrics.md`` their columns.
+Test sets drawn with ``data.shape_prior=allages`` (the all-ages body) are also broken down per age band and
+per build (:mod:`arteq.training.breakdown`): ``metrics.json["breakdown"]`` and tables in ``metrics.md``.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from omegaconf import DictConfig
 
 from arteq.io import runs
 from arteq.paths import conf_dir
-from arteq.results import method_name, metrics_markdown, metrics_table, summary_rows
+from arteq.results import breakdown_markdown, method_name, metrics_markdown, metrics_table, summary_rows
 from arteq.training.build import build_datamodule
 from arteq.training.module import ArtEqModule
 
@@ -34,11 +36,20 @@ def test_module(module: ArtEqModule, datamodule, trainer: L.Trainer, ckpt_path: 
     return module.test_results
 
 
+def module_breakdown(module: ArtEqModule) -> dict[str, Any]:
+    """The last :func:`test_module` run's metrics per age band and build (``{split: {grouping: ...}}``;
+    empty unless its test sets were drawn with the all-ages prior)."""
+    return dict(getattr(module, "test_breakdown", None) or {})
+
+
 def write_metrics(summary: dict[str, Any], output_dir: Path, method: str) -> None:
     """Write ``metrics.json`` (everything) and ``metrics.md`` (the table: ``method``'s row, and the
-    mean-pose floor's if the summary has one) atomically, and log the table."""
+    mean-pose floor's if the summary has one; then the per-age-band and per-build tables when the summary
+    has a ``breakdown``) atomically, and log the table."""
     rows = summary_rows(summary, method)
     markdown = metrics_markdown(summary.get("task_name", "run"), rows)
+    if summary.get("breakdown"):
+        markdown += "\n\n" + breakdown_markdown(summary["breakdown"])
     path = runs.write_metrics(output_dir, summary, markdown)
     log.info("metrics written to %s\n%s", path, metrics_table(rows))
 
@@ -77,6 +88,8 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     metrics = test_module(module, datamodule, trainer)
     out_dir = Path(cfg.output_dir) if cfg.get("output_dir") else default_output_dir(ckpt)
     summary = {"task_name": f"eval {ckpt}", "ckpt_path": str(ckpt), "metrics": metrics}
+    if breakdown := module_breakdown(module):
+        summary["breakdown"] = breakdown
     if trainer.is_global_zero:
         trained = {"model": {"net": module.hparams.net}, "data": module.hparams.data}
         write_metrics(summary, out_dir, method_name(trained))

@@ -7,6 +7,9 @@ One shape for every command that tests something (training, ``arteq.eval``, the 
      "test_ood": {...}}
 
 built straight from the metric objects (:func:`split_results`), never parsed back from logger keys.
+Test sets drawn with the all-ages shape prior are also broken down per age band and per build
+(:mod:`arteq.training.breakdown`): ``{split: {grouping: {group: {"count": n, metric: value}}}}`` beside
+the results (``metrics.json["breakdown"]``), as tables by :func:`breakdown_markdown`.
 Method names come from the run's config (:func:`method_name`), so a PointNet++ run is labelled
 "PointNet++". Plain Python only: no torch import at module level.
 
@@ -50,6 +53,24 @@ SPLIT_LABELS = {
 UNITS_NOTE = "part_acc in %, v2v/mpjpe in cm (MPJPE over the 22 body joints), rot_err in degrees."
 #: Row label of the mean-pose floor.
 FLOOR_NAME = "mean pose (floor)"
+#: The breakdowns' groupings (:mod:`arteq.training.breakdown`), in table order, with their table titles.
+BREAKDOWN_TITLES = {
+    "age": "per age band (years)",
+    "build": "per build (the stored sample's: typical or extreme)",
+    "bmi": "per BMI band (kg/m^2, the ground-truth body's rest mesh)",
+}
+#: Column label of each grouping.
+BREAKDOWN_COLUMNS = {"age": "age", "build": "build", "bmi": "BMI"}
+#: What the breakdown's groups are (under its tables).
+BREAKDOWN_NOTE = (
+    "Groups of the test clouds drawn with the all-ages shape prior: age = the morphological age (years) of "
+    "the stored Anny sample a body was drawn from (2-12 children, 13-17 teens, 18-64 adults, 65+ elderly); "
+    "build = that sample's build (typical: anny's per-age weight, muscle and proportions; extreme: those "
+    "uniform over anny's range); BMI = mass (rest-mesh volume x 980 kg/m^3) / stature^2 of the ground-truth "
+    "body, in the WHO adult bands (children's BMI is lower by nature: read it with the age table). "
+    "clouds = the group's count; the groups of a grouping add up to the split's clouds (those whose body "
+    "was drawn from the stored samples: all of them with the synthetic poses)."
+)
 #: Suffix of the method name per training augmentation.
 AUGMENT_SUFFIX = {"none": "", "so3": " + SO(3) aug", "z": " + z aug"}
 
@@ -192,3 +213,34 @@ def summary_rows(summary: Mapping[str, Any], name: str) -> dict[str, Mapping[str
     if "mean_pose_baseline" in summary:
         rows[FLOOR_NAME] = summary["mean_pose_baseline"]
     return rows
+
+
+def breakdown_table(
+    breakdown: Mapping[str, Mapping[str, Any]], grouping: str, splits: Iterable[str] | None = None
+) -> str:
+    """Markdown table of one grouping (``age``, ``build``, ``bmi``) of a breakdown ``{split: {grouping:
+    {group: {count, metric: value}}}}``: a row per split (in :data:`ALL_TEST_SPLITS` order, or ``splits``')
+    and group, the cloud count and :data:`METRIC_KEYS`."""
+    known = [s for s in ALL_TEST_SPLITS if s in breakdown]
+    order = list(splits) if splits is not None else known + [s for s in breakdown if s not in known]
+    col = BREAKDOWN_COLUMNS.get(grouping, grouping)
+    lines = [f"| split | {col} | clouds | part acc % | V2V cm | MPJPE cm | rot err deg |",
+             "|---|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for split in order:
+        for group, m in (breakdown.get(split) or {}).get(grouping, {}).items():
+            cells = [str(int(m.get("count", 0)))] + [format_value(m.get(k)) for k in METRIC_KEYS]
+            lines.append(f"| {SPLIT_LABELS.get(split, split)} | {group} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def breakdown_markdown(breakdown: Mapping[str, Mapping[str, Any]], splits: Iterable[str] | None = None,
+                       level: str = "##") -> str:  # fmt: skip
+    """The breakdown's tables, one per grouping that some split has (``level``: the headings' level)."""
+    splits = list(splits) if splits is not None else None
+    parts = []
+    groupings = [g for g in BREAKDOWN_TITLES if any(g in (v or {}) for v in breakdown.values())]
+    groupings += [g for v in breakdown.values() for g in (v or {}) if g not in groupings]
+    for grouping in dict.fromkeys(groupings):
+        title = BREAKDOWN_TITLES.get(grouping, f"per {grouping}")
+        parts += [f"{level} Test metrics {title}", "", breakdown_table(breakdown, grouping, splits), ""]
+    return "\n".join([*parts, BREAKDOWN_NOTE])

@@ -51,7 +51,7 @@ def fit_and_test(
     init_ckpt: Path | None = None, max_epochs: int | None = None, run_test: bool = True,
 ) -> tuple[dict[str, Any], L.Trainer]:  # fmt: skip
     """Train one stage in ``output_dir``; returns (paths and, if run_test, test metrics; the trainer)."""
-    from arteq.eval import test_module
+    from arteq.eval import module_breakdown, test_module
 
     output_dir.mkdir(parents=True, exist_ok=True)
     resume_ckpt = plan["resume"].get(str(stage))
@@ -77,6 +77,8 @@ def fit_and_test(
         result["resumed_from"] = str(resume_ckpt)
     if run_test:
         result["metrics"] = test_module(module, datamodule, trainer, ckpt_path=best or None)
+        if breakdown := module_breakdown(module):  # all-ages test sets: per age band and build
+            result["breakdown"] = breakdown
     finish_wandb(trainer)
     return result, trainer
 

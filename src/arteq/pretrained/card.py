@@ -2,9 +2,11 @@
 
 ``python -m arteq.pretrained.card export RUN_DIR --name anny22 [--stage1-run DIR] [--notes TEXT]``
 writes ``src/arteq/pretrained/<name>.ckpt`` (weights only) and ``<name>.md`` (the card: architecture and
-config, data, steps and wall-clock, commands, test metrics). ``python -m arteq.pretrained.card check NAME``
-recomputes the card's *subset metrics* (the first ``n`` clouds of each test split, generated
-deterministically from the recorded data config) and compares them with the stored ones.
+config, data, steps and wall-clock, commands, test metrics; for a run whose test sets were drawn with the
+all-ages shape prior also its test metrics per age band and per build, ``metrics.json["breakdown"]``).
+``python -m arteq.pretrained.card check NAME`` recomputes the card's *subset metrics* (the first ``n``
+clouds of each test split, generated deterministically from the recorded data config) and compares them
+with the stored ones.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import torch
 
 from arteq.io.runs import load_module, read_checkpoint
 from arteq.pretrained import PRETRAINED_DIR, export_weights, resolve_checkpoint
-from arteq.results import METRIC_KEYS, PAPER_SPLITS, format_value
+from arteq.results import METRIC_KEYS, PAPER_SPLITS, breakdown_markdown, format_value
 
 __all__ = ["check", "export", "load_module", "main", "subset_metrics", "write_card"]
 
@@ -76,6 +78,8 @@ def _run_summary(run: Path) -> dict[str, Any]:
     if mj.is_file():
         m = json.loads(mj.read_text())
         info["metrics"] = m.get("metrics")
+        if m.get("breakdown"):  # all-ages test sets: per age band and build
+            info["breakdown"] = m["breakdown"]
         for k in ("train_seconds", "wall_seconds", "elapsed_s"):
             if k in m:
                 info[k] = m[k]
@@ -130,8 +134,8 @@ def write_card(path: Path, info: Mapping[str, Any], hparams: Mapping[str, Any], 
         "## Data",
         f"- `{json.dumps(data)}`",
         "- Synthetic in-distribution motions (training, val, test_id) and out-of-distribution extreme poses "
-        "(test_ood), free anny22 body; every split with a random root orientation (`augment=so3`, "
-        "`eval_augment=so3`; test_ood always so3). See docs/data.md.",
+        f"(test_ood), free {hparams['body_model'].get('name')} body; every split with a random root "
+        "orientation (`augment=so3`, `eval_augment=so3`; test_ood always so3). See docs/data.md.",
         "",
         "## Training",
     ]
@@ -144,6 +148,8 @@ def write_card(path: Path, info: Mapping[str, Any], hparams: Mapping[str, Any], 
     lines += ["", "## Test metrics (128 clouds per split, the run's own test sets)", ""]
     if info.get("test_metrics"):
         lines.append(_fmt_table(info["test_metrics"]))
+    if info.get("test_breakdown"):  # per age band and per build (test sets of the all-ages prior)
+        lines += ["", breakdown_markdown(info["test_breakdown"], level="##").rstrip()]
     lines += [
         "",
         f"## Subset metrics (first {info['subset_n']} clouds per split; checked by the tests)",
@@ -168,7 +174,13 @@ def export(
     commands: list[str] | None = None,
     training: str | None = None,
     hardware: str | None = None,
+    breakdown_from: Path | None = None,
 ) -> Path:
+    """Export ``run``'s best checkpoint as ``<name>.ckpt`` with its card ``<name>.md`` (module docstring).
+
+    ``breakdown_from``: a ``metrics.json`` (or its folder) of ``python -m arteq.eval`` on that checkpoint
+    whose ``breakdown`` (test metrics per age band and build) the card shows, for a run whose own test
+    wrote none (trained before the breakdown existed); by default the run's own ``breakdown``."""
     from arteq.io.runs import find_checkpoint
 
     ckpt = find_checkpoint(run, "best")
@@ -178,6 +190,13 @@ def export(
     module = load_module(out)
     subset = subset_metrics(module, subset_n)
     summary = _run_summary(run)
+    breakdown = summary.get("breakdown")
+    if breakdown_from is not None:
+        path = Path(breakdown_from)
+        path = path / "metrics.json" if path.is_dir() else path
+        breakdown = json.loads(path.read_text()).get("breakdown")
+        if not breakdown:
+            raise ValueError(f"{path}: no breakdown (test sets not drawn with data.shape_prior=allages?)")
     info = {
         "name": name,
         "source_checkpoint": f"{ckpt} (global step {int(state.get('global_step', -1))})",
@@ -185,6 +204,7 @@ def export(
         "subset_tolerance": 0.05,
         "subset_metrics": subset,
         "test_metrics": summary.get("metrics"),
+        "test_breakdown": breakdown,
         "stage2": summary,
         "stage1": _run_summary(stage1_run) if stage1_run else None,
         "notes": notes,
@@ -227,11 +247,17 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("--command", action="append", help="a command that trained it (repeat, in order)")
     e.add_argument("--training", help="steps, epochs and wall-clock, as text")
     e.add_argument("--hardware", help="the machine it trained on, as text")
+    e.add_argument(
+        "--breakdown-from", type=Path,
+        help="metrics.json (or its folder) of `python -m arteq.eval` on the run's checkpoint whose "
+        "per-age-band and per-build breakdown the card shows (default: the run's own)",
+    )  # fmt: skip
     c = sub.add_parser("check", help="recompute a shipped model's subset metrics")
     c.add_argument("name", nargs="?", default="anny22")
     a = ap.parse_args(argv)
     if a.cmd == "export":
-        print(export(a.run, a.name, a.stage1_run, a.notes, a.subset, a.command, a.training, a.hardware))
+        print(export(a.run, a.name, a.stage1_run, a.notes, a.subset, a.command, a.training, a.hardware,
+                     a.breakdown_from))  # fmt: skip
         return 0
     return check(a.name)
 

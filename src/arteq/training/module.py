@@ -15,7 +15,8 @@ from arteq.io.runs import read_checkpoint
 from arteq.models.placement import body_centroid_matrix, estimate_translation
 from arteq.models.precision import full_precision, upcast
 from arteq.models.registry import build_net
-from arteq.results import TEST_SPLITS, VIEW_SPLITS, metric_values
+from arteq.results import ALL_TEST_SPLITS, TEST_SPLITS, VIEW_SPLITS, metric_values
+from arteq.training.breakdown import SplitBreakdown, has_shape_meta
 from arteq.training.losses import DEFAULT_WEIGHTS, arteq_losses
 from arteq.training.metrics import BodyFitMetrics
 from arteq.training.optim import DEFAULT_OPTIMIZER, DEFAULT_SCHEDULER, build_optimizer, build_scheduler
@@ -54,7 +55,10 @@ class ArtEqModule(L.LightningModule):
 
     After ``trainer.test``, :attr:`test_results` holds ``{split: {metric: value}}`` (see
     :mod:`arteq.results`), the values this module logged: the datamodule's ``test_splits``, then its
-    single-view test sets (``view_splits``, :data:`arteq.results.VIEW_SPLITS`) when it has any.
+    single-view test sets (``view_splits``, :data:`arteq.results.VIEW_SPLITS`) when it has any; and
+    :attr:`test_breakdown` ``{split: {grouping: {group: {count, metric: value}}}}``, the same metrics per age
+    band and per build (:mod:`arteq.training.breakdown`) of the splits whose clouds record what body they
+    are (drawn with ``data.shape_prior=allages``), empty for the others.
     """
 
     def __init__(
@@ -110,7 +114,10 @@ class ArtEqModule(L.LightningModule):
         self.test_metrics = torch.nn.ModuleList([BodyFitMetrics() for _ in TEST_SPLITS])
         # the single-view test sets' (data.view_splits); metric states are not saved in checkpoints
         self.view_metrics = torch.nn.ModuleDict({s: BodyFitMetrics() for s in VIEW_SPLITS})
+        # per age band and build (test sets drawn with the all-ages prior); no state in checkpoints either
+        self.breakdown_metrics = torch.nn.ModuleDict({s: SplitBreakdown() for s in ALL_TEST_SPLITS})
         self.test_results: dict[str, dict[str, Any]] = {}
+        self.test_breakdown: dict[str, dict[str, Any]] = {}
 
     # ------------------------------------------------------------------ inference
     def forward(
@@ -203,13 +210,34 @@ class ArtEqModule(L.LightningModule):
         pred, gt, _ = self._step(batch, use_gt_parts=False)
         split = self._test_split_names()[dataloader_idx]
         self._update(self._test_metric(split), pred, gt)
+        if has_shape_meta(batch) and split in self.breakdown_metrics:
+            with full_precision(batch["points"]):
+                pred32 = {k: upcast(v) for k, v in pred.items()}
+                gt32 = {k: upcast(v) if torch.is_tensor(v) else v for k, v in gt.items()}
+                self.breakdown_metrics[split].update(gt32, self.body, pred32, gt32)
 
     def on_test_epoch_end(self):
         # Every rank computes every split that was run (even one whose shard of the set was empty):
         # compute() gathers the metric states of all ranks, so all of them must take part.
         self.test_results = {}
+        self.test_breakdown = {}
         for split in self._test_split_names():
             self.test_results[split] = self._log_metrics(split, self._test_metric(split))
+            if split in self.breakdown_metrics:
+                breakdown = self._breakdown_results(self.breakdown_metrics[split])
+                if breakdown is not None:
+                    self.test_breakdown[split] = breakdown
+
+    def _breakdown_results(self, metric: SplitBreakdown) -> dict[str, Any] | None:
+        """A split's breakdown (None when no rank saw a cloud that records its body: a normal-prior set)."""
+        seen = torch.tensor(float(metric.update_called), device=self.device)
+        if self._trainer is not None and self.trainer.world_size > 1:  # every rank takes the same branch
+            seen = self.trainer.strategy.reduce(seen, reduce_op="max")
+        if not bool(seen > 0):
+            return None
+        results = metric.compute()
+        metric.reset()
+        return results
 
     def _log_metrics(self, split: str, metric: BodyFitMetrics, prog_bar: bool = False) -> dict[str, Any]:
         """Log a split's metrics and return them as results (the logged float32 values)."""
