@@ -144,3 +144,24 @@ def test_a_part_cut_off_by_occlusion_is_kept_in_one_camera_s_view():
     is_foot = np.arange(len(pts)) >= len(torso) + len(leg)
     assert (clean_scan(pts, viewpoint=np.zeros(3)).keep[is_foot]).all()
     assert not clean_scan(pts).keep[is_foot].any()
+
+
+def test_a_part_behind_an_occlusion_edge_is_kept_and_an_object_beside_is_not():
+    """The legs below a bent-over torso, 0.4 m behind it in depth but bordering it in the image, are the
+    body's own (with the camera known); a box 0.5 m beside the body, apart in the image too, is clutter."""
+    rng = np.random.default_rng(1)
+
+    def sheet(x, y, z, step=0.006):
+        gx, gy = np.meshgrid(np.arange(*x, step), np.arange(*y, step))
+        p = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)], 1)
+        return p + rng.normal(scale=0.002, size=p.shape)
+
+    torso = sheet((-0.2, 0.2), (-0.4, 0.0), 2.5)
+    legs = sheet((-0.17, 0.17), (0.0, 0.45), 2.9)  # starts where the torso ends, seen from the origin
+    box = rng.uniform(-0.05, 0.05, (400, 3)) + [0.75, -0.2, 2.55]
+    pts = np.concatenate([torso, legs, box])
+    kind = np.repeat([0, 1, 2], [len(torso), len(legs), len(box)])
+    seen = clean_scan(pts, viewpoint=np.zeros(3))
+    assert seen.keep[kind < 2].all() and not seen.keep[kind == 2].any() and not seen.flags
+    blind = clean_scan(pts)  # no camera: the legs are a separate piece 0.4 m away
+    assert not blind.keep[kind == 1].any() and not blind.keep[kind == 2].any()

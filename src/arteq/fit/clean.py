@@ -35,7 +35,9 @@ standard means (metres, any orientation: nothing assumes an up axis):
    large object), which the fit turns into the status ``not_single_body`` unless the check is off.
    In one camera's view (``viewpoint`` given) the body's own parts can lie beyond occlusion edges (a
    bent-over torso hides the waist; a leg behind the other, and its foot beyond it): components within
-   ``occlusion_gap_m`` of the body, and of those, and so on, are the body.
+   ``occlusion_gap_m`` of the body, or bordering it in the image (directions from the camera within
+   ``occlusion_angle_factor`` angular point spacings) across a depth jump of at most
+   ``occlusion_jump_m``, and so on from those, are the body.
 
 Clouds larger than ``max_points`` are cleaned on a random subset of that size and every point takes the
 label of its nearest subset point. Every input point gets a code (:data:`CODES`); counts and planes go to
@@ -82,6 +84,9 @@ class CleanConfig:
     second_body_frac: float = 0.25
     second_body_extent_m: float = 0.8
     occlusion_gap_m: float = 0.25
+    occlusion_angle_factor: float = 4.0
+    occlusion_angle_rad: tuple[float, float] = (0.005, 0.03)
+    occlusion_jump_m: float = 0.6
     max_points: int = 30000
     seed: int = 0
 
@@ -263,18 +268,34 @@ def _find_plane(
     return None
 
 
-def _occluded_parts(P: np.ndarray, comp: np.ndarray, body: np.ndarray, gap_m: float) -> np.ndarray:
-    """One camera's view: ``body`` grown by every component that comes within ``gap_m`` of it, and so on
-    (a leg behind the other leg, a foot beyond it: the body's own parts cut off by occlusion edges)."""
+def _occluded_parts(
+    P: np.ndarray, comp: np.ndarray, body: np.ndarray, viewpoint: np.ndarray, cfg: CleanConfig
+) -> np.ndarray:
+    """One camera's view: ``body`` grown by every component that comes within ``occlusion_gap_m`` of it,
+    or that borders it in the image (directions from the camera within ``occlusion_angle_factor`` x the
+    median angular spacing, clipped to ``occlusion_angle_rad``) across a depth jump of at most
+    ``occlusion_jump_m``, and so on (the legs behind a bent-over torso, a leg behind the other, its foot
+    beyond it: the body's own parts cut off by occlusion edges)."""
     from scipy.spatial import cKDTree
 
     body = body.copy()
+    rays = P - np.asarray(viewpoint, float)
+    dirs = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    angle = float(
+        np.clip(cfg.occlusion_angle_factor * _spacing(cKDTree(dirs), dirs, 4), *cfg.occlusion_angle_rad)
+    )
     for _ in range(10):
-        rest = np.unique(comp[~body])
-        if not len(rest):
+        if body.all():
             break
-        d = cKDTree(P[body]).query(P[~body], k=1, distance_upper_bound=gap_m)[0]
-        near = np.unique(comp[~body][np.isfinite(d)])
+        rest = np.nonzero(~body)[0]
+        near3d = np.isfinite(
+            cKDTree(P[body]).query(P[rest], k=1, distance_upper_bound=cfg.occlusion_gap_m)[0]
+        )
+        da, ia = cKDTree(dirs[body]).query(dirs[rest], k=1, distance_upper_bound=angle)
+        beside = np.isfinite(da)
+        jump = np.full(len(rest), np.inf)
+        jump[beside] = np.linalg.norm(P[rest[beside]] - P[body][ia[beside]], axis=1)
+        near = np.unique(comp[rest[near3d | (jump <= cfg.occlusion_jump_m)]])
         if not len(near):
             break
         body |= np.isin(comp, near)
@@ -327,7 +348,7 @@ def _clean_subset(
         main = int(np.argmax(sizes))
         body = comp == main
         if viewpoint is not None:
-            body = _occluded_parts(P, comp, body, cfg.occlusion_gap_m)
+            body = _occluded_parts(P, comp, body, viewpoint, cfg)
         main_tree = cKDTree(P[body])
         for c in np.argsort(sizes)[::-1]:
             members = comp == c
