@@ -284,7 +284,7 @@ def _occluded_parts(
     angle = float(
         np.clip(cfg.occlusion_angle_factor * _spacing(cKDTree(dirs), dirs, 4), *cfg.occlusion_angle_rad)
     )
-    for _ in range(10):
+    for _ in range(int(comp.max()) + 1):  # until nothing joins (at most one component a round)
         if body.all():
             break
         rest = np.nonzero(~body)[0]
