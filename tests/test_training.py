@@ -97,6 +97,22 @@ def test_overfits_a_tiny_batch(tiny_batch, make_module):
     assert sum(rot_err[-3:]) / 3 < 0.85 * sum(rot_err[:3]) / 3, (rot_err[:3], rot_err[-3:])
 
 
+def test_weights_from_a_body_with_other_betas_load_only_when_asked(tmp_path, tiny_net_200):
+    torch.manual_seed(0)
+    src = ArtEqModule(net=tiny_net_200, body_model={"name": "anny22"}, stage=2)
+    ckpt = tmp_path / "other_body.ckpt"
+    torch.save({"state_dict": {f"net.{k}": v for k, v in src.net.state_dict().items()}}, ckpt)
+    torch.manual_seed(1)
+    dst = ArtEqModule(net=tiny_net_200, body_model={"name": "toy"}, stage=2)  # 2 betas, anny22 has 10
+    fresh = {k: v.clone() for k, v in dst.net.state_dict().items()}
+    with pytest.raises(ValueError, match="reinit_mismatched"):
+        dst.load_net_weights(str(ckpt))
+    reinit = dst.load_net_weights(str(ckpt), reinit_mismatched=True)
+    assert reinit and all(k.startswith("shape_head.") for k in reinit)
+    for k, v in dst.net.state_dict().items():
+        torch.testing.assert_close(v, fresh[k] if k in reinit else src.net.state_dict()[k], rtol=0, atol=0)
+
+
 def test_stage2_trains_stage1_first_then_finds_it(tmp_path, run_cfg):
     from arteq.train import train
 

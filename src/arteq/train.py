@@ -59,8 +59,12 @@ def fit_and_test(
     # by the trainer, the checkpoint callbacks and the loggers (conf/)
     cfg = stage_config(cfg, output_dir, max_epochs=max_epochs, resuming=bool(resume_ckpt))
     datamodule, module = build_datamodule(cfg, body), build_module(cfg, stage, body)
+    reinit: list[str] = []
     if init_ckpt is not None:
-        module.load_net_weights(str(init_ckpt))
+        reinit = module.load_net_weights(str(init_ckpt), bool(cfg.stage1.get("reinit_mismatched", False)))
+        if reinit:
+            log.info("stage %d: %d tensors of another shape in %s keep their fresh initialisation: %s", stage,
+                     len(reinit), init_ckpt, ", ".join(reinit))  # fmt: skip
     trainer = build_trainer(cfg, extra_callbacks=[SamePlanOnAllRanks(plan)])
     n_params = sum(p.numel() for p in module.net.parameters())
     net_name = display_name(architecture(cfg))  # ArtEq, PointNet++ (models/registry.py)
@@ -73,6 +77,8 @@ def fit_and_test(
     result: dict[str, Any] = {"stage": stage, "parameters": n_params,
                               "train_seconds": round(time.time() - t0, 1), "output_dir": str(output_dir),
                               "best_ckpt": best, "last_ckpt": str(last_checkpoint(output_dir))}  # fmt: skip
+    if reinit:
+        result["reinitialised"] = reinit
     if resume_ckpt:
         result["resumed_from"] = str(resume_ckpt)
     if run_test:

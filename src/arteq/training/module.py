@@ -270,15 +270,31 @@ class ArtEqModule(L.LightningModule):
         return optimizer if sched is None else {"optimizer": optimizer, "lr_scheduler": sched}
 
     # ------------------------------------------------------------------ stage 2 initialisation
-    def load_net_weights(self, ckpt_path: str) -> None:
-        """Initialise the network from another checkpoint (stage 1 -> stage 2); optimizer starts fresh."""
+    def load_net_weights(self, ckpt_path: str, reinit_mismatched: bool = False) -> list[str]:
+        """Initialise the network from another checkpoint (stage 1 -> stage 2); optimizer starts fresh.
+
+        ``reinit_mismatched``: tensors whose shape differs from the checkpoint's (the shape head's output
+        when the checkpoint was trained on a body with another number of betas) keep this network's fresh
+        initialisation instead of failing. Returns their names (empty when every tensor was loaded)."""
         state = read_checkpoint(ckpt_path)
         if "state_dict" not in state:
             raise ValueError(f"{ckpt_path}: not a Lightning checkpoint (no 'state_dict')")
         net_state = {k[4:]: v for k, v in state["state_dict"].items() if k.startswith("net.")}
+        own = self.net.state_dict()
+        mismatched = [k for k, v in net_state.items() if k in own and own[k].shape != v.shape]
+        if mismatched and not reinit_mismatched:
+            shapes = ", ".join(f"{k} {list(net_state[k].shape)} vs {list(own[k].shape)}" for k in mismatched[:3])
+            raise ValueError(
+                f"{ckpt_path}: tensor shapes differ from this config's ({shapes}); stage 1 and stage 2 must "
+                "use the same model and body (stage1.reinit_mismatched=true re-initialises those tensors, "
+                "e.g. the shape head's output for a body with another number of betas)"
+            )
+        for k in mismatched:
+            net_state[k] = own[k]
         missing, unexpected = self.net.load_state_dict(net_state, strict=False)
         if missing or unexpected:
             raise ValueError(
                 f"{ckpt_path}: network does not match this config (missing {missing[:5]}, "
                 f"unexpected {unexpected[:5]}); stage 1 and stage 2 must use the same model config"
             )
+        return mismatched
