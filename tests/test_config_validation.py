@@ -60,7 +60,7 @@ def test_default_and_paper_configs_are_valid():
         ("resume=sometimes", "resume='sometimes'", "auto"),
         ("data.shape_prior=adults", "data.shape_prior='adults'", "normal | allages"),
         ("data.shape_prior=allages", "data.shape_prior='allages'", "use body_model=anny_allages"),
-        ("data.train_pose_mix={id:1,extreme:1}", "data.train_pose_mix=", "id | ood | limb1 | limb2 | contact"),
+        ("data.train_pose_mix={id:1,extreme:1}", "data.train_pose_mix=", "id | ood | limb1 | limb2"),
         ("data.train_pose_mix={id:-1}", "data.train_pose_mix=", "weights >= 0"),
     ],
 )  # fmt: skip

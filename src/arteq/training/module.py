@@ -283,7 +283,9 @@ class ArtEqModule(L.LightningModule):
         own = self.net.state_dict()
         mismatched = [k for k, v in net_state.items() if k in own and own[k].shape != v.shape]
         if mismatched and not reinit_mismatched:
-            shapes = ", ".join(f"{k} {list(net_state[k].shape)} vs {list(own[k].shape)}" for k in mismatched[:3])
+            shapes = ", ".join(
+                f"{k} {list(net_state[k].shape)} vs {list(own[k].shape)}" for k in mismatched[:3]
+            )
             raise ValueError(
                 f"{ckpt_path}: tensor shapes differ from this config's ({shapes}); stage 1 and stage 2 must "
                 "use the same model and body (stage1.reinit_mismatched=true re-initialises those tensors, "
