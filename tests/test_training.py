@@ -72,6 +72,32 @@ def test_full_model_is_equivariant(tiny_batch, element, make_module):
     torch.testing.assert_close(out_rot["vertices"], out["vertices"] @ r.T, atol=2e-3, rtol=0)
 
 
+def test_segmenter_group_statistics_are_invariant_and_mean_is_the_default(tiny_batch, tiny_net_200):
+    from arteq.models import ArtEqNet
+
+    pts = tiny_batch["points"]
+    r = group_rotations()[int(torch.nonzero(element_orders() == 5)[0])]
+    torch.manual_seed(0)
+    plain = ArtEqNet(**tiny_net_200).eval()
+    torch.manual_seed(0)
+    seg = tiny_net_200.get("segmenter", {})
+    named = ArtEqNet(**{**tiny_net_200, "segmenter": {**seg, "group_pool": "mean"}})
+    for (k, a), b in zip(plain.state_dict().items(), named.state_dict().values()):
+        torch.testing.assert_close(a, b, rtol=0, atol=0, msg=k)  # same weights: checkpoints load as before
+    torch.manual_seed(0)
+    stats = ArtEqNet(**{**tiny_net_200, "segmenter": {**seg, "group_pool": "mean_max_std"}}).eval()
+    with torch.no_grad():
+        feats = stats.backbone(pts)
+        inv = stats.segmenter.invariant(feats)
+        assert inv.shape[-1] == 3 * feats.shape[-1]
+        torch.testing.assert_close(inv[..., : feats.shape[-1]], feats.mean(dim=2))
+        out, out_rot = stats(pts), stats(pts @ r.T)
+    torch.testing.assert_close(out_rot["part_probs"], out["part_probs"], atol=1e-4, rtol=0)
+    torch.testing.assert_close(out_rot["global_rotmats"], r @ out["global_rotmats"], atol=1e-3, rtol=0)
+    with pytest.raises(ValueError, match="group_pool"):
+        ArtEqNet(**{**tiny_net_200, "segmenter": {"group_pool": "median"}})
+
+
 def test_overfits_a_tiny_batch(tiny_batch, make_module):
     module = make_module(stage=1, optimizer={"name": "adam", "lr": 3e-3})
     opt = torch.optim.Adam(module.net.parameters(), lr=3e-3)

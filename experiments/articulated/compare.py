@@ -87,6 +87,15 @@ ARMS: dict[str, list[str]] = {
         "model.net.pose_head.geometry=true",
         "model.loss_weights.group_ce=1.0",
     ],
+    # model=arteq_local as it is now (= local_invariant_geo_ce) with the segmenter reading the max and the
+    # spread over the group beside the mean (segmenter.group_pool)
+    "local_invariant_geo_ce_stats": [
+        *LOCAL,
+        "model.net.parent_conditioning=invariant",
+        "model.net.pose_head.geometry=true",
+        "model.loss_weights.group_ce=1.0",
+        "model.net.segmenter.group_pool=mean_max_std",
+    ],
     "old_ce": [
         *OLD_BACKBONE,
         "model.net.parent_conditioning=aligned",

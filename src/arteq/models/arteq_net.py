@@ -81,7 +81,7 @@ class ArtEqNet(nn.Module):
         if points.shape[1] == 0:
             raise ValueError("points: empty cloud (N = 0)")
         feats = self.backbone(points, fps_idx=fps_idx)  # [B, N, A, C]
-        seg_logits = self.segmenter(feats.mean(dim=2))
+        seg_logits = self.segmenter(self.segmenter.invariant(feats))
         # probabilities in float32 at least (under mixed precision the logits may be bfloat16)
         part_probs = torch.softmax(seg_logits, dim=-1, dtype=upcast(seg_logits).dtype)
         if gt_labels is not None:

@@ -28,20 +28,48 @@ class ResFC(nn.Module):
         return self.skip(x) + self.fc2(self.act(self.fc1(self.act(x))))
 
 
+#: Invariant statistics over the group axis the segmenter may read (``segmenter.group_pool``).
+GROUP_POOLS = {"mean": ("mean",), "mean_max": ("mean", "max"), "mean_max_std": ("mean", "max", "std")}
+
+
 class PartSegmenter(nn.Module):
     """PointNet with skip connections and global context on SO(3)-invariant point features.
 
-    ``[B, N, C] -> logits [B, N, K]``. Every block after the first sees its input concatenated with
+    ``[B, N, C * m] -> logits [B, N, K]``. Every block after the first sees its input concatenated with
     the max over points (global context), as in a ResNet-PointNet. Only per-point maps and pooling
     over points are used, so invariant inputs give invariant outputs and point order is irrelevant.
+
+    ``group_pool`` (:data:`GROUP_POOLS`): which statistics over the 60 group elements of an equivariant
+    point feature :meth:`invariant` makes its input of: ``mean`` (the paper's group mean; ``m = 1``), or
+    also the max and the standard deviation over the group (``m = 2, 3``). A rotation permutes the group
+    axis, so every such statistic is exactly invariant; the max and the spread keep what the mean averages
+    away (how peaked a feature is over orientations), at no cost to locality.
     """
 
-    def __init__(self, in_channels: int, num_parts: int = 22, hidden: int = 128, num_blocks: int = 4):
+    def __init__(
+        self,
+        in_channels: int,
+        num_parts: int = 22,
+        hidden: int = 128,
+        num_blocks: int = 4,
+        group_pool: str = "mean",
+    ):
         super().__init__()
-        self.fc_in = nn.Linear(in_channels, 2 * hidden)
+        if group_pool not in GROUP_POOLS:
+            raise ValueError(f"segmenter.group_pool must be one of {list(GROUP_POOLS)}, got {group_pool!r}")
+        self.group_pool = GROUP_POOLS[group_pool]
+        self.fc_in = nn.Linear(in_channels * len(self.group_pool), 2 * hidden)
         self.blocks = nn.ModuleList([ResFC(2 * hidden, hidden) for _ in range(num_blocks)])
         self.fc_out = nn.Linear(hidden, num_parts)
         self.act = nn.ReLU()
+
+    def invariant(self, feats: torch.Tensor) -> torch.Tensor:
+        """``[B, N, A, C]`` equivariant point features -> ``[B, N, C * m]`` invariant ones."""
+        stats = {"mean": lambda: feats.mean(dim=2), "max": lambda: feats.amax(dim=2),
+                 "std": lambda: feats.std(dim=2, unbiased=False)}  # fmt: skip
+        if self.group_pool == ("mean",):
+            return stats["mean"]()
+        return torch.cat([stats[k]() for k in self.group_pool], dim=-1)
 
     def forward(self, feats: torch.Tensor) -> torch.Tensor:
         x = self.fc_in(feats)

@@ -33,7 +33,11 @@ STAGE1_DATA_KEYS = ("source", "num_points", "augment", "noise_std", "density_con
 #: Values that settings added after a checkpoint was written have when it does not name them: an older
 #: stage-1 checkpoint matches a config that sets them so (what the network / data did before the option).
 ADDED_DEFAULTS = {
-    "net": {"backbone": {"normalize": False}, "pose_head": {"logit_eps": None, "geometry": False}},
+    "net": {
+        "backbone": {"normalize": False},
+        "pose_head": {"logit_eps": None, "geometry": False},
+        "segmenter": {"group_pool": "mean"},
+    },
     "data": {"wide_poses": 0.0, "shape_prior": "normal", "train_pose_mix": None},
 }
 #: Environment variable through which rank 0 hands its run plan to the ranks Lightning launches.
