@@ -60,7 +60,9 @@ class FitResult:
     ``view_dir [3]`` the direction from the body toward the camera (partial scans), ``one_sidedness`` the
     score of :func:`arteq.fit.partial.one_sidedness`; ``part_points [22]`` the fitted points (``points``)
     predicted on each part, ``parts_seen [22]`` whether that is enough to call the part seen
-    (:data:`MIN_PART_SHARE` of the points, at least :data:`MIN_PART_POINTS`).
+    (:data:`MIN_PART_SHARE` of the points, at least :data:`MIN_PART_POINTS`). ``start_hypothesis``: for a
+    refined partial scan, the refinement's start (:func:`arteq.fit.partial.pick_starts`'s info: ``picked``
+    ``network`` / ``untwisted`` / ``turned <deg>``, the parts untwisted, every start's score).
     """
 
     name: str
@@ -99,6 +101,7 @@ class FitResult:
     one_sidedness: float | None = None
     part_points: np.ndarray | None = None
     parts_seen: np.ndarray | None = None
+    start_hypothesis: dict | None = None  # partial scans: the refinement's start (fit.partial.pick_starts)
 
     def seen_names(self, seen: bool = True) -> list[str]:
         """Names of the parts seen (or, ``seen=False``, not seen) in the scan."""
@@ -349,6 +352,10 @@ class Fitter:
             :func:`arteq.models.placement.align_translation` and refined with the model -> scan term on
             the vertices its camera sees.
         view_dir: ``[3]`` direction from the body toward the camera, in the scans' frame (implies partial).
+        hypotheses: partial scans' refinement starts (:func:`arteq.fit.partial.pick_starts`): ``True``
+            (default, :class:`arteq.fit.partial.HypothesisConfig`: the network's pose with the parts it
+            turned the wrong way round turned back), a ``HypothesisConfig``, or ``False`` (the network's
+            start only). Full scans never use them.
     """
 
     def __init__(
@@ -367,6 +374,7 @@ class Fitter:
         strict: bool = False,
         partial: bool | None = None,
         view_dir: np.ndarray | list[float] | None = None,
+        hypotheses: Any = True,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
 
@@ -378,6 +386,11 @@ class Fitter:
             if partial is False:
                 raise ValueError("view_dir is for partial scans: it cannot go with partial=False")
         self.partial, self.view_dir = partial, view_dir
+        if hypotheses is True:
+            from arteq.fit.partial import HypothesisConfig
+
+            hypotheses = HypothesisConfig()
+        self.hypotheses = hypotheses or None
 
         if points < MIN_POINTS:
             raise ValueError(f"points must be >= {MIN_POINTS}, got {points}")
@@ -499,6 +512,9 @@ class Fitter:
         modes = self._scan_modes(items, net_in, ref_in, pred, init)
         t1 = time.perf_counter()
         dtype = self.body.v_template.dtype
+        probs_fit = probs_ref  # the refinement's labels; what is reported stays the network's
+        if self.refine and self.hypotheses is not None and any(m["partial"] for m in modes):
+            probs_fit = self._pick_starts(ref_in, probs_ref, init, modes)
         if self.refine:
             visible = None
             if any(m["partial"] for m in modes):  # model -> scan only where each partial scan's camera sees
@@ -510,7 +526,7 @@ class Fitter:
             out = refine(
                 self.body,
                 torch.as_tensor(np.stack(ref_in), dtype=dtype, device=self.device),
-                torch.as_tensor(probs_ref, dtype=dtype, device=self.device),
+                torch.as_tensor(probs_fit, dtype=dtype, device=self.device),
                 init,
                 self.refine_config,
                 m2s_visible=visible,
@@ -617,6 +633,7 @@ class Fitter:
                     scan_mode_reason=mode["reason"],
                     view_dir=mode["view_dir"],
                     one_sidedness=mode["score"],
+                    start_hypothesis=mode.get("hypothesis"),
                     part_points=counts[i],
                     parts_seen=counts[i] >= max(MIN_PART_POINTS, MIN_PART_SHARE * self.points),
                 )
@@ -681,6 +698,32 @@ class Fitter:
             init["transl"] = init["transl"].clone()
             init["transl"][rows] = t.to(init["transl"].dtype)
         return modes
+
+    def _pick_starts(
+        self, ref_in: list[np.ndarray], probs_ref: np.ndarray, init: dict[str, torch.Tensor],
+        modes: list[dict[str, Any]],
+    ) -> np.ndarray:  # fmt: skip
+        """Partial scans: the refinement's start picked from :func:`arteq.fit.partial.pick_starts`'s
+        hypotheses (``init`` rows replaced, ``modes[i]["hypothesis"]`` set); returns the part
+        probabilities (the picked start's own labelling where it is not the network's body). Full scans'
+        rows are left as they are."""
+        from arteq.fit.partial import pick_starts
+
+        rows = [i for i, m in enumerate(modes) if m["partial"]]
+        picked = pick_starts(
+            self.body, [ref_in[i] for i in rows], [probs_ref[i] for i in rows],
+            {k: init[k][rows] for k in ("local_rotmats", "betas", "transl")},
+            [(modes[i]["camera"], modes[i]["view_dir"]) for i in rows],
+            self.refine_config, self.hypotheses, self.subset,
+        )  # fmt: skip
+        probs_ref = probs_ref.copy()
+        for k in ("local_rotmats", "betas", "transl"):
+            init[k] = init[k].clone()
+            init[k][rows] = picked["init"][k].to(device=init[k].device, dtype=init[k].dtype)
+        for j, i in enumerate(rows):
+            probs_ref[i] = picked["probs"][j]
+            modes[i]["hypothesis"] = picked["info"][j]
+        return probs_ref
 
     def _visible(self, vertices: np.ndarray, mode: dict[str, Any]) -> np.ndarray:
         """``[V]`` bool: the vertices of a fitted body (centred metres) its scan's camera sees."""
