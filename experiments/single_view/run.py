@@ -6,8 +6,16 @@ bodies' full-surface clouds (``test_view_full``: the full sampler on the same st
 
 * ``network``: the network alone (``refine=False``), translation as the fitter places a scan of its mode;
 * ``refine_full``: the refinement as for full scans (``partial=False``: model -> scan on every vertex);
+* ``refine_partial_single``: as before the start hypotheses (``hypotheses=False``): partial scans refined
+  from the network's start only;
+* ``refine_partial_scored``: the network's start and the untwisted one both refined briefly, the one the
+  partial objective and free-space share score best kept (``HypothesisConfig(keep_network=True)``);
+* ``refine_partial_turned``: as ``refine_partial_scored`` plus the untwisted start turned 180 degrees
+  about the body's up axis (``turns_deg=(0, 180)``);
 * ``refine_partial``: the default fitter (scan mode detected; partial scans refined with the model -> scan
-  term on the vertices the estimated camera sees).
+  term on the vertices the estimated camera sees, from the start picked among
+  :func:`arteq.fit.partial.start_hypotheses`: the network's and, where parts of it are turned the wrong way
+  round, the untwisted one).
 
 Writes ``results/<arm>.json`` (per scan: split, V2V, MPJPE, seconds, mode, parts seen) and, with
 ``--table``, ``table.md`` from every results file present. Run from the repository root::
@@ -30,8 +38,49 @@ SPLITS = ("test_view_full", "test_view_front", "test_view_side", "test_view_back
 ARMS = {
     "network": {"refine": False},
     "refine_full": {"refine": True, "partial": False},
+    "refine_partial_single": {"refine": True, "hypotheses": False},
+    "refine_partial_scored": {"refine": True, "hypotheses": {"keep_network": True}},
+    "refine_partial_turned": {"refine": True, "hypotheses": {"keep_network": True, "turns_deg": (0, 180)}},
     "refine_partial": {"refine": True},
 }
+
+
+class HypothesisLog:
+    """Records every start hypothesis a fit scored (its refined vertices and score), to compare the pick with
+    the best of the hypotheses by the ground truth (patches :func:`arteq.fit.partial.hypothesis_score`)."""
+
+    def __init__(self):
+        import arteq.fit.partial as partial
+
+        self.calls: list[tuple[np.ndarray, np.ndarray, dict]] = []
+        orig = partial.hypothesis_score
+
+        def logged(vertices, points, *args, **kwargs):
+            out = orig(vertices, points, *args, **kwargs)
+            self.calls.append((vertices, points, out))
+            return out
+
+        partial.hypothesis_score = logged
+
+    def take(self, gt_vertices: np.ndarray, scan_points: np.ndarray) -> list[dict] | None:
+        """V2V (cm) of each hypothesis of the last fit against ``gt_vertices`` (scan frame, metres)."""
+        calls, self.calls = self.calls, []
+        if not calls:
+            return None
+        out = []
+        for verts, pts, score in calls:
+            centre = scan_points.mean(0) - pts.mean(0)  # the fitted points are the centred ones, moved back
+            v2v = float(np.linalg.norm(verts + centre - gt_vertices, axis=1).mean() * 100)
+            out.append(
+                {
+                    "v2v_cm": v2v,
+                    "score": score["score"],
+                    "free": score["free"],
+                    "s2m": score["s2m"],
+                    "m2s": score["m2s"],
+                }
+            )
+        return out
 
 
 def scans(n: int, body) -> dict[str, dict[str, torch.Tensor]]:
@@ -52,15 +101,21 @@ def scans(n: int, body) -> dict[str, dict[str, torch.Tensor]]:
     return out
 
 
-def run_arm(arm: str, n: int, threads: int, ckpt: str | None = None) -> list[dict]:
+def run_arm(arm: str, n: int, threads: int, ckpt: str | None = None, splits=None) -> list[dict]:
     from arteq.fit.api import Fitter
 
     torch.set_num_threads(threads)
-    fitter = Fitter(ckpt=ckpt, device="cpu", anny=False, **ARMS[arm])
+    from arteq.fit.partial import HypothesisConfig
+
+    kw = dict(ARMS[arm])
+    if isinstance(kw.get("hypotheses"), dict):
+        kw["hypotheses"] = HypothesisConfig(**kw["hypotheses"])
+    fitter = Fitter(ckpt=ckpt, device="cpu", anny=False, **kw)
+    log = HypothesisLog()
     body = fitter.body
     data = scans(n, body)
     rows = []
-    for split in SPLITS:
+    for split in [s for s in SPLITS if not splits or s.replace("test_view_", "") in splits]:
         d = data[split]
         for i in range(n):
             pts = d["points"][i].double().numpy()
@@ -72,6 +127,7 @@ def run_arm(arm: str, n: int, threads: int, ckpt: str | None = None) -> list[dic
                 gt = body(betas=d["betas"][one], pose=d["pose"][one], transl=d["transl"][one])
             v2v = float(np.linalg.norm(res.vertices - gt.vertices[0].numpy(), axis=1).mean() * 100)
             mpjpe = float(np.linalg.norm(res.joints - gt.joints[0].numpy(), axis=1).mean() * 100)
+            hyps = log.take(gt.vertices[0].double().numpy(), res.scan_points.astype(np.float64))
             labelled = res.point_labels >= 0  # clutter removal may drop flying pixels
             acc = float((res.point_labels[labelled] == d["labels"][i].numpy()[labelled]).mean() * 100)
             rows.append({
@@ -80,6 +136,7 @@ def run_arm(arm: str, n: int, threads: int, ckpt: str | None = None) -> list[dic
                 "status": res.status, "scan_mode": res.scan_mode, "reason": res.scan_mode_reason,
                 "parts_seen": int(res.parts_seen.sum()) if res.parts_seen is not None else None,
                 "one_sidedness": res.one_sidedness,
+                "start": res.start_hypothesis, "hypotheses": hyps,
             })  # fmt: skip
             msg = f"V2V {v2v:.1f} cm, MPJPE {mpjpe:.1f} cm, parts {acc:.0f} %, {wall:.2f} s, {res.scan_mode}"
             print(f"{arm} {split} {i}: {msg}")
@@ -112,13 +169,51 @@ def table(folder: Path) -> str:
                 f"{v.mean():.1f} / {np.median(v):.1f} / {j.mean():.1f} / {acc:.0f} % / {t:.2f} s / "
                 f"{part:.0f} %"
             )
-        lines.append(f"| {arm} | {len(rows) // len(SPLITS)} per view | " + " | ".join(cells) + " |")
+        per_view = len(rows) // len({x["split"] for x in rows})
+        lines.append(f"| {arm} | {per_view} per view | " + " | ".join(cells) + " |")
     note = (
         "\nEach cell: V2V mean / median (cm, all vertices), MPJPE mean (cm, 22 joints), the network's part "
         "accuracy on the scan's points, median seconds per scan (wall clock of `Fitter.fit_points`), "
         "share of scans fitted in partial mode."
     )
-    return "\n".join(lines) + "\n" + note + "\n"
+    return "\n".join(lines) + "\n" + note + "\n" + picks(folder)
+
+
+def picks(folder: Path, arm: str = "refine_partial_scored") -> str:
+    """How the start hypotheses were picked (``arm``'s results): per view, scans with more than one start,
+    the starts picked, and whether the pick is the start whose brief refinement is nearest the truth."""
+    path = folder / f"{arm}.json"
+    if not path.is_file():
+        return ""
+    rows = [r for r in json.loads(path.read_text())["rows"] if r.get("start")]
+    if not rows:
+        return ""
+    lines = [
+        f"\nStart hypotheses ({arm}): scans with more than one start, what was picked, picks that are the"
+        " start nearest the truth after the brief refinement, and the V2V (cm, mean) after the brief"
+        " refinement of the picked start and of the best one (oracle):\n",
+        "| view | scans with starts to pick | picked (network / untwisted / turned) | right picks |"
+        " brief V2V picked / oracle |",
+        "|---|---:|---|---:|---|",
+    ]
+    for s in SPLITS:
+        every = [x for x in rows if x["split"] == s]
+        r = [x for x in every if x.get("hypotheses")]
+        if not r:
+            continue
+        names = [x["start"]["picked"] for x in r]
+        pick, best = [], []
+        for x in r:
+            h = x["hypotheses"]
+            pick.append(h[int(np.argmin([a["score"] for a in h]))]["v2v_cm"])
+            best.append(min(a["v2v_cm"] for a in h))
+        right = int(np.isclose(pick, best).sum())
+        turned = sum(n.startswith("turned") for n in names)
+        count = f"{names.count('network')} / {names.count('untwisted')} / {turned}"
+        view = s.replace("test_view_", "")
+        lines.append(f"| {view} | {len(r)} of {len(every)} | {count} | {right} of {len(r)} | "
+                     f"{np.mean(pick):.1f} / {np.mean(best):.1f} |")  # fmt: skip
+    return "\n".join(lines) + "\n"
 
 
 def main() -> None:
@@ -129,11 +224,12 @@ def main() -> None:
     ap.add_argument("--ckpt", default=None, help="checkpoint or shipped model name (default: anny22)")
     ap.add_argument("--out", default=str(HERE / "results"), help="folder of the results files")
     ap.add_argument("--table", action="store_true", help="write table.md from the results present")
+    ap.add_argument("--splits", nargs="*", default=None, help="only these views (full front side back top)")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for arm in args.arm:
-        rows = run_arm(arm, args.scans, args.threads, args.ckpt)
+        rows = run_arm(arm, args.scans, args.threads, args.ckpt, args.splits)
         meta = {"arm": arm, "scans_per_view": args.scans, "threads": args.threads, "fitter": ARMS[arm],
                 "ckpt": args.ckpt or "anny22"}  # fmt: skip
         (out / f"{arm}.json").write_text(json.dumps({**meta, "rows": rows}, indent=1))
