@@ -17,6 +17,11 @@
 
 * :func:`visibility_function`: :func:`visible_vertices` for a batch of posed bodies, as the refinement's
   ``m2s_visible``.
+* Refinement starts (:func:`pick_starts`, the fitter's hook for partial scans): :func:`untwist` turns back
+  the parts a network turned the wrong way round (from one side a front and a back look alike),
+  :func:`start_hypotheses` builds the starts (:class:`HypothesisConfig`), and where there is more than one
+  each is refined briefly and scored by :func:`hypothesis_score` (the partial objective plus
+  :func:`free_space`, the share of the body where the camera saw past or through the surface).
 
 numpy, one scan at a time.
 """
