@@ -160,8 +160,10 @@ def test_older_stage1_checkpoints_match_configs_that_keep_their_behaviour():
 
     old = {"backbone": {"radii": [0.1]}, "pose_head": {"dim": 8}}
     want = {"backbone": {"radii": [0.1], "normalize": False}, "pose_head": {"dim": 8, "geometry": False,
-                                                                            "logit_eps": None}}  # fmt: skip
+                                                                            "logit_eps": None},
+            "sides": "learned", "side_scale": 0.02}  # fmt: skip
     assert _with_added_defaults(old, ADDED_DEFAULTS["net"]) == want
+    assert _with_added_defaults(old, ADDED_DEFAULTS["net"]) != {**want, "sides": "torso"}
     want["pose_head"]["geometry"] = True
     assert _with_added_defaults(old, ADDED_DEFAULTS["net"]) != want
     assert _data_signature({"num_points": 500}) == _data_signature(

@@ -25,8 +25,10 @@ OLD_BACKBONE = [
     "model.net.backbone.radii=[0.253,0.3573,0.506,0.506]", "model.net.backbone.strides=[2,1,2,1]",
     "model.net.backbone.neighbours=[32,16,32,16]", "model.net.backbone.normalize=false",
 ]  # fmt: skip
-# model=arteq_local as first screened (before its geometry tokens and group cross-entropy became its defaults)
-LOCAL = ["model=arteq_local", "model.net.pose_head.geometry=false", "model.loss_weights.group_ce=0.0"]
+# model=arteq_local as first screened (before its geometry tokens, group cross-entropy and torso-frame sides
+# became its defaults)
+LOCAL = ["model=arteq_local", "model.net.pose_head.geometry=false", "model.loss_weights.group_ce=0.0",
+         "model.net.sides=learned"]  # fmt: skip
 ARMS: dict[str, list[str]] = {
     # the configuration the shipped anny22 model has (radii scaled to 500 points, plain sums, aligned parent)
     "old": [*OLD_BACKBONE, "model.net.parent_conditioning=aligned", "model.net.pose_head.logit_eps=null"],

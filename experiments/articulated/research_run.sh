@@ -2,7 +2,9 @@
 # The research model of the articulated-equivariance work (issue 18): the part-local network
 # (model=arteq_local: metric radii, neighbour means, 250 deep centres, invariant parent feature, part-geometry
 # tokens, group cross-entropy), ID-only training poses (half of them widened), any orientation, 500 points;
-# stage 1 for 1000 steps, then stage 2 for 6500 (13 epochs of 500; 8 until stage-2 step ~850 of the run, extended for >= 5 CPU-hours), one thread. Resumable: run it again and it
+# stage 1 for 1000 steps, then stage 2 for 6500 (13 epochs of 500; 8 until stage-2 step ~850 of the run, extended for >= 5 CPU-hours), one thread;
+# left / right from the torso frame (model.net.sides=torso, now in model=arteq_local) from stage-2 step 3400 on (before: the
+# segmenter's own sides; no new weights, the switch is recorded in the checkpoints). Resumable: run it again and it
 # continues from its newest checkpoint (a step checkpoint every 25 steps).
 #   nohup bash experiments/articulated/research_run.sh > outputs/research/local3.log 2>&1 &
 set -euo pipefail

@@ -12,6 +12,7 @@ from arteq.body.skeleton import NUM_JOINTS, PARENTS, global_to_local
 from arteq.equivariant import EquivariantBackbone, group_rotations
 from arteq.models.heads import PartSegmenter, PoseHead, ShapeHead, part_geometry, pool_parts
 from arteq.models.precision import full_precision, upcast
+from arteq.models.sides import TORSO_PARTS, resolve_sides, side_mode, torso_frame
 
 
 class ArtEqNet(nn.Module):
@@ -25,6 +26,10 @@ class ArtEqNet(nn.Module):
             same group element, the paper's form and what checkpoints from before the modes hold) or
             ``"none"`` / ``False`` (the "nc" ablation); see :func:`arteq.models.heads.parent_mode`.
         segmenter, pose_head, shape_head: keyword arguments of the heads.
+        sides: how a point's side (left or right limb) is decided: ``"learned"`` (the segmenter's own
+            22-way answer; what checkpoints from before the option hold) or ``"torso"`` (the segmenter's
+            side-free answer split by the point's lateral coordinate in the predicted torso frame,
+            :mod:`arteq.models.sides`; no parameters). ``side_scale``: the width in metres of that split.
 
     All arguments are plain values so that the configuration round-trips through checkpoints.
     """
@@ -40,8 +45,14 @@ class ArtEqNet(nn.Module):
         segmenter: dict[str, Any] | None = None,
         pose_head: dict[str, Any] | None = None,
         shape_head: dict[str, Any] | None = None,
+        sides: str | None = "learned",
+        side_scale: float = 0.02,
     ):
         super().__init__()
+        self.sides = side_mode(sides)
+        if not float(side_scale) > 0:
+            raise ValueError(f"model.net.side_scale must be > 0 (metres), got {side_scale}")
+        self.side_scale = float(side_scale)
         self.backbone = EquivariantBackbone(**(backbone or {}))
         c = self.backbone.out_channels
         self.num_parts = NUM_JOINTS
@@ -84,16 +95,25 @@ class ArtEqNet(nn.Module):
         seg_logits = self.segmenter(self.segmenter.invariant(feats))
         # probabilities in float32 at least (under mixed precision the logits may be bfloat16)
         part_probs = torch.softmax(seg_logits, dim=-1, dtype=upcast(seg_logits).dtype)
-        if gt_labels is not None:
+        side_frame = self.sides == "torso"
+        if gt_labels is not None:  # stage 1: pool the ground-truth parts
             pool_weights = F.one_hot(gt_labels, self.num_parts).to(feats.dtype)
+            pose = self._pose(feats, points, pool_weights)
+            if side_frame:
+                seg_logits = self._resolve_sides(
+                    seg_logits, points, pool_weights, pose["rotmats"][:, TORSO_PARTS]
+                )
+                part_probs = seg_logits.exp()
         else:
+            if side_frame:
+                # The torso's frame from its parts pooled with the predicted probabilities. The torso has no
+                # side and its parents are torso parts, so its rotations are the same before and after.
+                torso = self._pose(feats, points, part_probs, parts=TORSO_PARTS)["rotmats"]
+                seg_logits = self._resolve_sides(seg_logits, points, part_probs, torso)
+                part_probs = seg_logits.exp()
             pool_weights = part_probs
-        part_feats = pool_parts(feats, pool_weights)  # [B, K, A, C]
-        geometry = None
-        if self.pose_head.geometry:
-            with full_precision(points):
-                geometry = part_geometry(upcast(points), pool_weights, self.pose_head.group_rotations)
-        pose = self.pose_head(part_feats, geometry)
+            pose = self._pose(feats, points, pool_weights)
+        part_feats = pose["part_feats"]
         betas = self.shape_head(part_feats.mean(dim=2))
         with full_precision(points):  # relative rotations between parts: no bfloat16 products
             local_rotmats = global_to_local(pose["rotmats"])
@@ -107,3 +127,39 @@ class ArtEqNet(nn.Module):
             "local_rotmats": local_rotmats,
             "betas": betas,
         }
+
+    def _pose(
+        self,
+        feats: torch.Tensor,
+        points: torch.Tensor,
+        weights: torch.Tensor,
+        parts: tuple[int, ...] | None = None,
+    ) -> dict[str, torch.Tensor]:
+        """The pose head on the parts pooled with ``weights [B, N, K]``, with ``part_feats [B, K, A, C]``
+        added to its outputs. ``parts``: only these parts' rotations; only they and their parents are
+        pooled (the others' features stay zero and are not read)."""
+        if parts is None:
+            part_feats = pool_parts(feats, weights)
+            geo_weights = weights
+        else:
+            cols = sorted(set(parts) | {max(int(self.pose_head.parents[k]), 0) for k in parts})
+            b, _, a, c = feats.shape
+            part_feats = feats.new_zeros(b, self.num_parts, a, c)
+            part_feats[:, cols] = pool_parts(feats, weights[..., cols])
+            geo_weights = torch.zeros_like(weights)
+            geo_weights[..., cols] = weights[..., cols]
+        geometry = None
+        if self.pose_head.geometry:
+            with full_precision(points):
+                geometry = part_geometry(upcast(points), geo_weights, self.pose_head.group_rotations)
+        return {**self.pose_head(part_feats, geometry, parts=parts), "part_feats": part_feats}
+
+    def _resolve_sides(
+        self, seg_logits: torch.Tensor, points: torch.Tensor, weights: torch.Tensor, torso: torch.Tensor
+    ) -> torch.Tensor:
+        """:func:`arteq.models.sides.resolve_sides` in the torso frame of ``weights`` and the torso's
+        predicted rotations ``torso [B, 4, 3, 3]`` (no gradient through the frame)."""
+        with full_precision(points):
+            pts = upcast(points)
+            centre, left = torso_frame(pts.detach(), weights.detach(), torso.detach())
+            return resolve_sides(seg_logits, pts, centre, left, self.side_scale)

@@ -266,11 +266,18 @@ class PoseHead(nn.Module):
         self.logit_eps = None if logit_eps is None else float(logit_eps)
 
     def forward(
-        self, part_feats: torch.Tensor, geometry: torch.Tensor | None = None
+        self,
+        part_feats: torch.Tensor,
+        geometry: torch.Tensor | None = None,
+        parts: tuple[int, ...] | None = None,
     ) -> dict[str, torch.Tensor]:
         """``part_feats [B, K, A, C]`` (and, for a head built with ``geometry=True``, the
         :func:`part_geometry` tokens ``[B, K, A, 16]``) -> ``weights [B, K, A]``, ``mean [B, K, 3, 3]``
-        (before projection) and ``rotmats [B, K, 3, 3]`` (global rotation of each part)."""
+        (before projection) and ``rotmats [B, K, 3, 3]`` (global rotation of each part).
+
+        ``parts``: compute only these parts (outputs ``[B, len(parts), ...]``, in that order). A part's
+        output depends on its own tokens and its parent's only, so each is exactly what the full call
+        gives for it."""
         if self.geometry != (geometry is not None):
             need = "needs" if self.geometry else "was built without"
             raise ValueError(f"PoseHead {need} part_geometry tokens (geometry={self.geometry})")
@@ -279,10 +286,11 @@ class PoseHead(nn.Module):
         # which bfloat16 products (3 significant digits) would round away, and the attention over the
         # tokens would no longer be (near-)exactly permutation-equivariant. It is small next to the backbone.
         with full_precision(part_feats):
-            return self._forward(upcast(part_feats), None if geometry is None else upcast(geometry))
+            return self._forward(upcast(part_feats), None if geometry is None else upcast(geometry), parts)
 
-    def _forward(self, part_feats: torch.Tensor, geometry: torch.Tensor | None) -> dict[str, torch.Tensor]:
-        b, k, a, _ = part_feats.shape
+    def _forward(
+        self, part_feats: torch.Tensor, geometry: torch.Tensor | None, parts: tuple[int, ...] | None = None
+    ) -> dict[str, torch.Tensor]:
         x = part_feats
         if self.parent_mode == "aligned":
             x = torch.cat([x, x[:, self.parents]], dim=-1)
@@ -291,9 +299,14 @@ class PoseHead(nn.Module):
             x = torch.cat([x, inv], dim=-1)
         if geometry is not None:
             x = torch.cat([x, geometry.to(x.dtype)], dim=-1)
+        emb = self.part_embedding
+        if parts is not None:
+            x = x[:, list(parts)]
+            emb = None if emb is None else emb[list(parts)]
+        b, k, a, _ = x.shape
         x = self.embed(x)
-        if self.part_embedding is not None:
-            x = x + self.part_embedding[:, None, :]
+        if emb is not None:
+            x = x + emb[:, None, :]
         x = x.reshape(b * k, a, -1)
         for layer in self.attn:
             x = layer(x)

@@ -37,6 +37,8 @@ ADDED_DEFAULTS = {
         "backbone": {"normalize": False},
         "pose_head": {"logit_eps": None, "geometry": False},
         "segmenter": {"group_pool": "mean"},
+        "sides": "learned",
+        "side_scale": 0.02,
     },
     "data": {"wide_poses": 0.0, "shape_prior": "normal", "train_pose_mix": None},
 }

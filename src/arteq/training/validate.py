@@ -23,6 +23,7 @@ from arteq.data.dataset import AUGMENTS
 from arteq.data.shapes import SHAPE_PRIORS
 from arteq.models.heads import PARENT_MODES
 from arteq.models.registry import ARCHITECTURES, DEFAULT_ARCH
+from arteq.models.sides import SIDE_MODES
 from arteq.results import TEST_SPLITS, VIEW_NAMES, view_split
 from arteq.training import optim
 from arteq.training.losses import DEFAULT_WEIGHTS
@@ -260,6 +261,9 @@ def validate_model(cfg: DictConfig) -> None:
         if not (pc is None or isinstance(pc, bool) or (isinstance(pc, str) and pc.lower() in PARENT_MODES)):
             allowed = f"{' | '.join(PARENT_MODES)} (or true = aligned, false = none)"
             raise ConfigError("model.net.parent_conditioning", pc, allowed)
+        _one_of(cfg, "model.net.sides", SIDE_MODES, default="learned")
+        if _get(cfg, "model.net.side_scale") is not None:
+            _positive_float(cfg, "model.net.side_scale", " (the width of the left / right split, in metres)")
         bb = "model.net.backbone"
         channels = _get(cfg, f"{bb}.channels", [32, 32, 64, 64])
         strides = _get(cfg, f"{bb}.strides", [2, 1, 2, 1])

@@ -1,0 +1,147 @@
+"""Left and right from the torso's frame (model.net.sides = torso, arteq.models.sides)."""
+
+from __future__ import annotations
+
+import pytest
+import roma
+import torch
+
+from arteq.body.skeleton import JOINT_NAMES
+from arteq.equivariant import element_orders, group_rotations
+from arteq.models.arteq_net import ArtEqNet
+from arteq.models.heads import PoseHead
+from arteq.models.sides import LEFT_AXIS, LEFT_PARTS, RIGHT_PARTS, TORSO_PARTS, resolve_sides, torso_frame
+
+SMALL = {
+    "backbone": {"channels": [4, 4], "strides": [2, 1], "radii": [0.3, 0.4], "neighbours": [8, 8],
+                 "kernel": "ico13", "normalize": True},
+    "segmenter": {"hidden": 16}, "parent_conditioning": "invariant",
+    "pose_head": {"dim": 16, "heads": 4, "mlp_hidden": 16, "logit_eps": 1e-4, "geometry": True},
+    "shape_head": {"dim": 16, "heads": 4, "mlp_hidden": 16},
+}  # fmt: skip
+
+
+def _cloud(n=120, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    return (torch.rand(1, n, 3, generator=g, dtype=torch.float64) - 0.5) * 0.6
+
+
+def test_mirror_pairs_and_torso_parts():
+    assert len(LEFT_PARTS) == len(RIGHT_PARTS) == 8
+    for left, right in zip(LEFT_PARTS, RIGHT_PARTS):
+        assert JOINT_NAMES[left].replace("left_", "right_") == JOINT_NAMES[right]
+    assert [JOINT_NAMES[k] for k in TORSO_PARTS] == ["pelvis", "spine1", "spine2", "spine3"]
+
+
+@pytest.mark.parametrize("body", ["anny22", "toy_body"])
+def test_left_axis_points_to_the_bodys_left_in_its_rest_pose(body, request):
+    # Every body's left limbs lie on the +x side of its rest pose (SMPL's convention, followed by the
+    # Anny bodies and the toy): the side rule depends on it.
+    b = request.getfixturevalue(body)
+    out = b(pose=torch.eye(3).repeat(1, 22, 1, 1))
+    j = out.joints[0].double()
+    axis = torch.tensor(LEFT_AXIS, dtype=j.dtype)
+    for left, right in zip(LEFT_PARTS, RIGHT_PARTS):
+        assert float((j[left] - j[right]) @ axis) > 0.02, (JOINT_NAMES[left], j[left], j[right])
+
+
+def test_resolve_sides_splits_each_pair_by_the_lateral_coordinate():
+    torch.manual_seed(0)
+    logits = torch.randn(2, 50, 22, dtype=torch.float64)
+    pts = torch.randn(2, 50, 3, dtype=torch.float64)
+    rot = roma.random_rotmat(2, dtype=torch.float64)
+    centre, left = torch.zeros(2, 3, dtype=torch.float64), rot @ torch.tensor(LEFT_AXIS, dtype=torch.float64)
+    out = resolve_sides(logits, pts, centre, left, scale=0.02).exp()
+    p = logits.softmax(-1)
+    torch.testing.assert_close(out.sum(-1), torch.ones(2, 50, dtype=torch.float64))
+    # side-free mass and the torso are kept
+    torch.testing.assert_close(
+        out[..., LEFT_PARTS] + out[..., RIGHT_PARTS], p[..., LEFT_PARTS] + p[..., RIGHT_PARTS]
+    )
+    torch.testing.assert_close(out[..., TORSO_PARTS], p[..., TORSO_PARTS])
+    # a point well on the body's left is given the left part of its pair, one on the right the right part
+    x = ((pts - centre[:, None]) * left[:, None]).sum(-1)
+    far = x.abs() > 0.2
+    pick_left = out[..., LEFT_PARTS] > out[..., RIGHT_PARTS]
+    assert bool((pick_left == (x > 0)[..., None])[far].all())
+
+
+def test_torso_frame_centre_is_the_torso_mass_and_falls_back_to_the_cloud():
+    pts = torch.tensor([[[1.0, 0, 0], [3.0, 0, 0], [10.0, 0, 0]]], dtype=torch.float64)
+    w = torch.zeros(1, 3, 22, dtype=torch.float64)
+    w[0, 0, 0] = w[0, 1, 3] = 1.0  # two torso points, the third a hand
+    rot = torch.eye(3, dtype=torch.float64).expand(1, 4, 3, 3)
+    centre, left = torso_frame(pts, w, rot)
+    torch.testing.assert_close(centre[0], torch.tensor([2.0, 0, 0], dtype=torch.float64), atol=1e-5, rtol=0)
+    torch.testing.assert_close(left[0], torch.tensor(LEFT_AXIS, dtype=torch.float64))
+    centre, _ = torso_frame(pts, torch.zeros_like(w), rot)
+    torch.testing.assert_close(centre[0], pts[0].mean(0))
+
+
+def test_pose_head_on_a_subset_of_parts_matches_the_full_call():
+    torch.manual_seed(0)
+    head = PoseHead(8, group_rotations(torch.float64), tuple(range(-1, 21)), dim=16, heads=4, mlp_hidden=16,
+                    parent_conditioning="invariant", logit_eps=1e-4).double()  # fmt: skip
+    feats = torch.randn(2, 22, 60, 8, dtype=torch.float64)
+    full = head(feats)
+    sub = head(feats, parts=(0, 3, 9))
+    torch.testing.assert_close(sub["rotmats"], full["rotmats"][:, [0, 3, 9]])
+    torch.testing.assert_close(sub["weights"], full["weights"][:, [0, 3, 9]])
+
+
+@pytest.mark.parametrize("pooling", ["predicted", "ground truth"])
+def test_network_with_torso_sides_stays_equivariant(pooling):
+    # Rotating the cloud by a group element: the parts (sides included) do not change, every part's
+    # rotation turns by that element (float64, to rounding).
+    torch.manual_seed(0)
+    net = ArtEqNet(**SMALL, sides="torso").double().eval()
+    pts = _cloud()
+    labels = torch.arange(120).remainder(22)[None] if pooling == "ground truth" else None
+    for order in (2, 3, 5):
+        r = group_rotations(torch.float64)[int(torch.nonzero(element_orders() == order)[0])]
+        with torch.no_grad():
+            out, out_rot = net(pts, labels), net(pts @ r.T, labels)
+        torch.testing.assert_close(out_rot["part_probs"], out["part_probs"], atol=1e-9, rtol=0)
+        torch.testing.assert_close(out_rot["global_rotmats"], r @ out["global_rotmats"], atol=1e-7, rtol=0)
+
+
+def test_torso_sides_add_no_weights_and_learned_is_the_segmenters_own_answer():
+    torch.manual_seed(0)
+    learned = ArtEqNet(**SMALL).double().eval()
+    torso = ArtEqNet(**SMALL, sides="torso").double().eval()
+    assert learned.sides == "learned"
+    torso.load_state_dict(learned.state_dict())  # strict: the same keys
+    pts = _cloud()
+    with torch.no_grad():
+        a, b = learned(pts), torso(pts)
+        feats = learned.backbone(pts)
+        own = learned.segmenter(learned.segmenter.invariant(feats)).softmax(-1)
+    torch.testing.assert_close(a["part_probs"], own)
+    # the torso's parts and rotations are the same in both; only the pairs' split differs
+    torch.testing.assert_close(b["part_probs"][..., TORSO_PARTS], a["part_probs"][..., TORSO_PARTS])
+    torch.testing.assert_close(b["global_rotmats"][:, TORSO_PARTS], a["global_rotmats"][:, TORSO_PARTS])
+    pair = list(LEFT_PARTS) + list(RIGHT_PARTS)
+    assert not torch.allclose(b["part_probs"][..., pair], a["part_probs"][..., pair])
+
+
+def test_torso_sides_train_with_finite_gradients():
+    torch.manual_seed(0)
+    net = ArtEqNet(**SMALL, sides="torso").double()
+    pts = _cloud()
+    labels = torch.arange(120).remainder(22)[None]
+    for gt in (labels, None):
+        out = net(pts, gt)
+        loss = (
+            torch.nn.functional.cross_entropy(out["seg_logits"][0], labels[0]) + out["global_rotmats"].sum()
+        )
+        net.zero_grad()
+        loss.backward()
+        grads = [p.grad for p in net.parameters() if p.grad is not None]
+        assert grads and all(bool(torch.isfinite(g).all()) for g in grads)
+
+
+def test_bad_side_settings_are_errors():
+    with pytest.raises(ValueError, match="model.net.sides"):
+        ArtEqNet(**SMALL, sides="mirror")
+    with pytest.raises(ValueError, match="side_scale"):
+        ArtEqNet(**SMALL, sides="torso", side_scale=0.0)
