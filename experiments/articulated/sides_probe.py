@@ -40,6 +40,7 @@ def main() -> None:
     ap.add_argument("ckpt")
     ap.add_argument("--n", type=int, default=64, help="clouds per test set")
     ap.add_argument("--splits", nargs="+", default=list(TEST_SPLITS))
+    ap.add_argument("--per-part", action="store_true", help="also each part's accuracy per set")
     args = ap.parse_args()
     torch.set_num_threads(1)
     module = runs.load_module(args.ckpt)
@@ -67,6 +68,7 @@ def main() -> None:
         s = dict.fromkeys(
             ("n", "ok", "free", "swap", "nbr", "rot", "ok_p", "rot_p", "ok_g", "rot_g", "b"), 0.0
         )
+        hits, count = torch.zeros(K), torch.zeros(K)
         for batch in loader:
             pts, gt, grot = batch["points"], batch["labels"], batch["global_rotmats"]
             with torch.no_grad():
@@ -77,6 +79,8 @@ def main() -> None:
                 wrong = pred != gt
                 s["n"] += gt.numel()
                 s["ok"] += (~wrong).sum().item()
+                count += torch.bincount(gt.flatten(), minlength=K)
+                hits += torch.bincount(gt[~wrong], minlength=K)
                 s["free"] += ((~wrong) | (pred == mirror[gt])).sum().item()
                 s["swap"] += (wrong & (pred == mirror[gt])).sum().item()
                 s["nbr"] += (wrong & adj[gt, pred]).sum().item()
@@ -104,6 +108,13 @@ def main() -> None:
             f"| {pct('ok_p'):.1f} / {deg('rot_p'):.1f} | {pct('ok_g'):.1f} / {deg('rot_g'):.1f} |",
             flush=True,
         )
+        if args.per_part:
+            acc = 100 * hits / count.clamp(min=1)
+            print(
+                f"<!-- {split} per part: "
+                + ", ".join(f"{n} {a:.0f}" for n, a in zip(JOINT_NAMES, acc))
+                + " -->"
+            )
 
 
 if __name__ == "__main__":
