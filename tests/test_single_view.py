@@ -204,3 +204,32 @@ def test_a_training_run_on_single_view_clouds_runs_end_to_end(tmp_path):
     res = subprocess.run(cmd, env=subprocess_env(), capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
     assert (out / "metrics.json").is_file()
+
+
+def test_a_limb_reaching_past_the_camera_is_cut_at_the_minimum_range(toy_body):
+    # A limb of a wide pose can reach the camera or pass behind it (a crash in training: projecting a
+    # vertex at depth ~0 asked for a 2 TB image). Nearer than NEAR_M nothing is measured, and the crop
+    # stays bounded.
+    from arteq.body.skeleton import JOINT_NAMES
+    from arteq.data.single_view import MAX_IMAGE_PX, NEAR_M
+
+    verts, pelvis = _posed(toy_body)
+    verts = verts.double().clone()
+    cfg = SingleViewConfig(distance_m=(1.0, 1.0))
+
+    def scan_of(v):
+        return single_view_scan(v, toy_body.faces, toy_body.lbs_weights, pelvis, torch.eye(3), 300,
+                                seeded_generator(1), cfg, "front")  # fmt: skip
+
+    cam = scan_of(verts)["camera"]  # the same seed puts the camera at the same place
+    axis = (pelvis.double() - cam) / (pelvis.double() - cam).norm()
+    hand = toy_body.lbs_weights.argmax(1) == JOINT_NAMES.index("left_wrist")
+    # the hand moved onto the camera's plane (depth 1 um: its projection ~1e8 px away) and half of it past
+    depth = (verts[hand] - cam) @ axis
+    shift = torch.where(torch.arange(int(hand.sum())) % 2 == 0, 1e-6, -0.2) - depth
+    verts[hand] += shift[:, None] * axis
+    scan = scan_of(verts)
+    assert float(((verts - cam) @ axis).min()) < 0
+    assert scan["points"].shape == (300, 3) and bool(torch.isfinite(scan["points"]).all())
+    assert float(((scan["points"] - cam) @ axis).min()) > NEAR_M - 0.01
+    assert 0 < int(scan["pixels"]) <= MAX_IMAGE_PX**2

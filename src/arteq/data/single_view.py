@@ -24,6 +24,10 @@ correct barycentrics), so its part label is interpolated like the full-surface s
   depth in metres; structured-light and time-of-flight sensors grow roughly quadratically), 2 mm at 1 m
   and 1.7 cm at 4 m by default.
 
+Surfaces nearer to the camera than ``NEAR_M`` (0.1 m: depth sensors have a minimum range) return nothing: a
+limb of a wide pose can reach the camera, 1 m from the pelvis, or pass behind it, and projecting such
+vertices would give an unbounded image (the crop's size is capped at ``MAX_IMAGE_PX`` per side too).
+
 The kept pixels are resampled to the full sampler's point count (without replacement when there are
 enough, else every pixel plus repeats moved by 2 mm), so a single-view cloud has the shape of a full one.
 Everything is vectorised torch and deterministic given the generator.
@@ -139,6 +143,12 @@ def look_at(position: torch.Tensor, target: torch.Tensor, up: torch.Tensor) -> t
     return torch.stack([right, down, fwd])
 
 
+#: Nearest depth (metres) the camera measures; nearer triangles are not drawn.
+NEAR_M = 0.1
+#: Largest crop (pixels per side) of a single-view image; the body at 1 m and 500 px spans about 1000.
+MAX_IMAGE_PX = 4096
+
+
 def rasterize(
     verts_cam: torch.Tensor,
     faces: torch.Tensor,
@@ -148,11 +158,13 @@ def rasterize(
     cx: float,
     cy: float,
     cull: bool = True,
+    near: float = NEAR_M,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Z-buffer of a mesh in camera coordinates (z > 0 in front of the camera; pinhole ``u = f x / z + cx``,
     pixel ``(i, j)`` has its centre at ``(j + 0.5, i + 0.5)``). ``cull``: skip the triangles turned away
     from the camera (seen clockwise in the image: the inside of a mesh whose triangles run
     counter-clockwise seen from outside, as the body models' do), which a closed surface hides anyway.
+    ``near``: triangles with a vertex nearer than this depth (metres) are not drawn.
 
     Every triangle's barycentric coordinates divided by the vertex depths are linear in the pixel position
     (perspective-correct interpolation): they are evaluated for every (triangle, pixel of its bounding box)
@@ -167,7 +179,7 @@ def rasterize(
     t = uv[faces]  # [F, 3, 2]
     a, b, c = t[:, 0], t[:, 1], t[:, 2]
     area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    keep = (z[faces] > 1e-3).all(1) & ((area < -1e-12) if cull else (area.abs() > 1e-12))
+    keep = (z[faces] > near).all(1) & ((area < -1e-12) if cull else (area.abs() > 1e-12))
     fid = torch.nonzero(keep)[:, 0]
     t, area, tz = t[fid], area[fid], z[faces[fid]]
     # lambda_i(u, v) = (k_i + u * du_i + v * dv_i) / area from the opposite edge (j, k), divided by z_i
@@ -260,8 +272,13 @@ def single_view_scan(
     rot = look_at(camera, pelvis.to(dtype), root[:, 1])
     vc = (verts - camera) @ rot.T
     f = float(cfg.focal_px)
-    uv = vc[:, :2] / vc[:, 2:3] * f
-    lo, hi = uv.amin(0), uv.amax(0)
+    front = vc[:, 2] > NEAR_M  # what a sensor can measure (and project: z -> 0 sends u, v to infinity)
+    if not front.any():
+        raise RuntimeError("single_view_scan: the whole body is nearer to the camera than its minimum range")
+    uv = vc[front, :2] / vc[front, 2:3] * f
+    # the crop: the body's projection, at most MAX_IMAGE_PX per side around the pelvis (the image centre)
+    lo = uv.amin(0).clamp_min(-MAX_IMAGE_PX / 2)
+    hi = uv.amax(0).clamp_max(MAX_IMAGE_PX / 2)
     width, height = (int(x) + 2 for x in torch.ceil(hi - lo).tolist())
     cx, cy = 1.0 - float(lo[0]), 1.0 - float(lo[1])
     face, bary, depth = rasterize(vc, faces, f, width, height, cx, cy)

@@ -138,20 +138,20 @@ class ArtEqNet(nn.Module):
         """The pose head on the parts pooled with ``weights [B, N, K]``, with ``part_feats [B, K, A, C]``
         added to its outputs. ``parts``: only these parts' rotations; only they and their parents are
         pooled (the others' features stay zero and are not read)."""
-        if parts is None:
-            part_feats = pool_parts(feats, weights)
-            geo_weights = weights
-        else:
-            cols = sorted(set(parts) | {max(int(self.pose_head.parents[k]), 0) for k in parts})
-            b, _, a, c = feats.shape
-            part_feats = feats.new_zeros(b, self.num_parts, a, c)
-            part_feats[:, cols] = pool_parts(feats, weights[..., cols])
-            geo_weights = torch.zeros_like(weights)
-            geo_weights[..., cols] = weights[..., cols]
+        cols = (
+            None
+            if parts is None
+            else sorted(set(parts) | {max(int(self.pose_head.parents[k]), 0) for k in parts})
+        )
+        w = weights if cols is None else weights[..., cols]
+        part_feats = pool_parts(feats, w)
         geometry = None
         if self.pose_head.geometry:
             with full_precision(points):
-                geometry = part_geometry(upcast(points), geo_weights, self.pose_head.group_rotations)
+                geometry = part_geometry(upcast(points), w, self.pose_head.group_rotations)
+        if cols is not None:  # back to all K parts; the others stay zero and are not read
+            part_feats = _scatter_parts(part_feats, cols, self.num_parts)
+            geometry = None if geometry is None else _scatter_parts(geometry, cols, self.num_parts)
         return {**self.pose_head(part_feats, geometry, parts=parts), "part_feats": part_feats}
 
     def _resolve_sides(
@@ -163,3 +163,10 @@ class ArtEqNet(nn.Module):
             pts = upcast(points)
             centre, left = torso_frame(pts.detach(), weights.detach(), torso.detach())
             return resolve_sides(seg_logits, pts, centre, left, self.side_scale)
+
+
+def _scatter_parts(x: torch.Tensor, cols: list[int], num_parts: int) -> torch.Tensor:
+    """``[B, len(cols), ...]`` -> ``[B, num_parts, ...]`` with zeros outside ``cols``."""
+    out = x.new_zeros(x.shape[0], num_parts, *x.shape[2:])
+    out[:, cols] = x
+    return out
