@@ -41,6 +41,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=64, help="clouds per test set")
     ap.add_argument("--splits", nargs="+", default=list(TEST_SPLITS))
     ap.add_argument("--per-part", action="store_true", help="also each part's accuracy per set")
+    ap.add_argument("--confusions", type=int, default=0, help="also the N most frequent (true -> predicted)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     module = runs.load_module(args.ckpt)
@@ -69,6 +70,7 @@ def main() -> None:
             ("n", "ok", "free", "swap", "nbr", "rot", "ok_p", "rot_p", "ok_g", "rot_g", "b"), 0.0
         )
         hits, count = torch.zeros(K), torch.zeros(K)
+        conf = torch.zeros(K * K)
         for batch in loader:
             pts, gt, grot = batch["points"], batch["labels"], batch["global_rotmats"]
             with torch.no_grad():
@@ -81,6 +83,7 @@ def main() -> None:
                 s["ok"] += (~wrong).sum().item()
                 count += torch.bincount(gt.flatten(), minlength=K)
                 hits += torch.bincount(gt[~wrong], minlength=K)
+                conf += torch.bincount((gt * K + pred)[wrong], minlength=K * K)
                 s["free"] += ((~wrong) | (pred == mirror[gt])).sum().item()
                 s["swap"] += (wrong & (pred == mirror[gt])).sum().item()
                 s["nbr"] += (wrong & adj[gt, pred]).sum().item()
@@ -108,6 +111,11 @@ def main() -> None:
             f"| {pct('ok_p'):.1f} / {deg('rot_p'):.1f} | {pct('ok_g'):.1f} / {deg('rot_g'):.1f} |",
             flush=True,
         )
+        if args.confusions:
+            top = conf.topk(args.confusions)
+            pairs = [f"{JOINT_NAMES[i // K]} -> {JOINT_NAMES[i % K]} {100 * v / s['n']:.1f} %"
+                     for v, i in zip(top.values.tolist(), top.indices.tolist())]  # fmt: skip
+            print(f"<!-- {split} most frequent errors (share of all points): " + ", ".join(pairs) + " -->")
         if args.per_part:
             acc = 100 * hits / count.clamp(min=1)
             print(
