@@ -165,7 +165,8 @@ def test_full_scans_take_the_old_path_and_partial_ones_pick_a_start(
     assert np.isfinite(side.vertices).all()
     side_old = old.fit_points(front_scan["points"].numpy())
     assert side_old.start_hypothesis is None
-    if side.start_hypothesis["picked"] == "network":  # the network's start won: the old path, to the bit
-        np.testing.assert_array_equal(side.vertices, side_old.vertices)
+    if side.start_hypothesis["picked"] == "network":  # the network's start won: the old path
+        # to float rounding (the starts are refined as one batch; measured up to 2.4e-7 m apart, 1 ulp)
+        np.testing.assert_allclose(side.vertices, side_old.vertices, rtol=0, atol=1e-5)
     else:
         assert side.start_hypothesis["untwisted_parts"] > 0
