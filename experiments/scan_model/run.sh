@@ -8,7 +8,8 @@
 # (init_research.ckpt: experiments/articulated/research_run.sh at stage-2 step 1250, weights only; the shape
 # head's output, 10 betas there and 16 here, starts fresh: stage1.reinit_mismatched). From scratch (stage 1
 # first) it stayed on the group-weight plateau for 500 steps (README.md). Resumable: run it again and it
-# continues from its newest checkpoint (a step checkpoint every 25 steps).
+# continues from its newest checkpoint (a step checkpoint every 25 steps). The segmenter's own sides
+# (model.net.sides=learned): the torso-frame rule of model=arteq_local collapsed this run (README.md).
 #   mkdir -p outputs/scan_model && nohup bash experiments/scan_model/run.sh > outputs/scan_model/run2.log 2>&1 &
 # Held out from training: the test sets (their own seeds), the user-scan suite's acrobatic templates
 # (experiments/fitting/user_scans.py), and the single-view test sets.
@@ -20,7 +21,7 @@ ARGS=(+experiment=stage2 model=arteq_local body_model=anny_allages data.shape_pr
       data.augment=so3 data.eval_augment=so3 data.train_size=4000 data.wide_poses=0.5
       'data.train_pose_mix={id:0.4,ood:0.4,limb1:0.1,limb2:0.1}' data.single_view.prob=0.25
       'data.view_splits=[front,side,back,top]' stage1.ckpt=experiments/scan_model/init_research.ckpt
-      stage1.reinit_mismatched=true trainer.max_epochs=14
+      stage1.reinit_mismatched=true trainer.max_epochs=14 model.net.sides=learned
       mean_pose_baseline=false trainer.enable_progress_bar=false)
 if [ -d "$RUN/checkpoints" ]; then
   exec .venv/bin/python -m arteq.train "${ARGS[@]}" resume="$RUN" "$@"
