@@ -26,6 +26,7 @@ import torch
 import torch.nn.functional as F
 
 from arteq.body.skeleton import JOINT_NAMES
+from arteq.models.precision import upcast
 
 #: ``model.net.sides``: ``learned`` (the segmenter's 22-way answer; checkpoints before the option) or
 #: ``torso`` (:func:`resolve_sides`).
@@ -78,7 +79,7 @@ def resolve_sides(
     unchanged; ``x = (points - centre) . left``. The result is a normalised log-distribution, so it serves as
     logits (cross-entropy, argmax, softmax) as it is.
     """
-    logp = F.log_softmax(seg_logits.float() if seg_logits.dtype != torch.float64 else seg_logits, dim=-1)
+    logp = F.log_softmax(upcast(seg_logits), dim=-1)
     x = ((points - centre[:, None]) * left[:, None]).sum(-1).to(logp.dtype) / scale  # [B, N]
     pair = torch.logaddexp(logp[..., list(LEFT_PARTS)], logp[..., list(RIGHT_PARTS)])
     out = logp.clone()
