@@ -311,3 +311,35 @@ def test_card_export_takes_the_breakdown_of_an_eval(toy_body, tiny_net, tmp_path
     assert "| ID | 65+ | 2 | 1.00 | 2.00 | 3.00 | 4.00 |" in (tmp_path / "pre" / "m.md").read_text()
     with pytest.raises(ValueError, match="no breakdown"):
         card.export(run, "m", None, None, 2, breakdown_from=run / "metrics.json")
+
+
+def test_card_export_of_a_checkpoint_file_takes_every_test_set_of_an_eval(
+    toy_body, tiny_net, tmp_path, monkeypatch
+):
+    """A resumable checkpoint whose run folder is gone: the card's test table is the eval's, every set."""
+    import lightning as L
+
+    import arteq.pretrained.card as card
+    from arteq.training.module import ArtEqModule
+
+    torch.manual_seed(0)
+    net = {**tiny_net, "backbone": {**tiny_net["backbone"], "radii": [0.3, 0.4, 0.5, 0.5]}}
+    module = ArtEqModule(net=net, body_model={"name": "toy"}, body=toy_body,
+                         data={"num_points": 100, "test_size": 2, "num_workers": 0})  # fmt: skip
+    trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False)
+    trainer.strategy.connect(module)
+    ckpt = tmp_path / "resume.ckpt"
+    trainer.save_checkpoint(ckpt, weights_only=False)
+    monkeypatch.setattr(card, "PRETRAINED_DIR", tmp_path / "pre")
+    (tmp_path / "pre").mkdir()
+    with pytest.raises(ValueError, match="needs --metrics-from"):
+        card.export(ckpt, "m", None, None, 2)
+    row = {"part_acc": 1.0, "v2v_cm": 2.0, "mpjpe_cm": 3.0, "rot_err_deg": 4.0}
+    (tmp_path / "eval").mkdir()
+    (tmp_path / "eval" / "metrics.json").write_text(
+        json.dumps({"metrics": {"test_id": row, "test_ood": row, "test_ood_limb1": {**row, "part_acc": 7.0}}})
+    )
+    card.export(ckpt, "m", None, None, 2, metrics_from=tmp_path / "eval")
+    text = (tmp_path / "pre" / "m.md").read_text()
+    assert "| test_ood_limb1 (" in text and "| 7.00 | 2.00 | 3.00 | 4.00 |" in text
+    assert "arteq.eval` on the checkpoint" in text

@@ -10,23 +10,28 @@ from arteq.pretrained import PRETRAINED_DIR, available, resolve_checkpoint
 pytestmark = pytest.mark.skipif("anny22" not in available(), reason="no shipped anny22 model in this tree")
 
 
-def test_shipped_file_is_weights_only_and_small():
-    path = resolve_checkpoint("anny22")
+SHIPPED = available()
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_file_is_weights_only_and_small(name):
+    path = resolve_checkpoint(name)
     assert path.parent == PRETRAINED_DIR
     assert path.stat().st_size < 8 * 2**20
     state = torch.load(str(path), map_location="cpu", weights_only=True)
     assert set(state) >= {"state_dict", "hyper_parameters", "arteq"}
     assert "optimizer_states" not in state and "loops" not in state
     assert all(k.startswith("net.") for k in state["state_dict"]), "body-model data must not be shipped"
-    assert (PRETRAINED_DIR / "anny22.md").is_file()
+    assert (PRETRAINED_DIR / f"{name}.md").is_file()
 
 
-def test_shipped_model_reproduces_its_card_subset_metrics():
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_model_reproduces_its_card_subset_metrics(name):
     from arteq.pretrained.card import load_module, subset_metrics
 
-    path = resolve_checkpoint("anny22")
+    path = resolve_checkpoint(name)
     info = torch.load(str(path), map_location="cpu", weights_only=True)["arteq"]
-    got = subset_metrics(load_module("anny22"), int(info["subset_n"]))
+    got = subset_metrics(load_module(name), int(info["subset_n"]))
     tol = float(info["subset_tolerance"])
     for split, values in info["subset_metrics"].items():
         for key, value in values.items():

@@ -1,7 +1,9 @@
 """Export a trained run as a shipped pretrained model, with its model card and a reproducibility check.
 
 ``python -m arteq.pretrained.card export RUN_DIR --name anny22 [--stage1-run DIR] [--notes TEXT]``
-writes ``src/arteq/pretrained/<name>.ckpt`` (weights only) and ``<name>.md`` (the card: architecture and
+(or ``export CKPT --metrics-from EVAL_DIR``: a checkpoint file whose run folder is gone, with the test metrics
+of ``python -m arteq.eval`` on it) writes
+``src/arteq/pretrained/<name>.ckpt`` (weights only) and ``<name>.md`` (the card: architecture and
 config, data, steps and wall-clock, commands, test metrics; for a run whose test sets were drawn with the
 all-ages shape prior also its test metrics per age band and per build, ``metrics.json["breakdown"]``).
 ``python -m arteq.pretrained.card check NAME`` recomputes the card's *subset metrics* (the first ``n``
@@ -22,8 +24,15 @@ from typing import Any
 import torch
 
 from arteq.io.runs import load_module, read_checkpoint
-from arteq.pretrained import PRETRAINED_DIR, export_weights, resolve_checkpoint
-from arteq.results import METRIC_KEYS, PAPER_SPLITS, breakdown_markdown, format_value
+from arteq.pretrained import DEFAULT_MODEL, PRETRAINED_DIR, export_weights, resolve_checkpoint
+from arteq.results import (
+    ALL_TEST_SPLITS,
+    METRIC_KEYS,
+    PAPER_SPLITS,
+    SPLIT_LABELS,
+    breakdown_markdown,
+    format_value,
+)
 
 __all__ = ["check", "export", "load_module", "main", "subset_metrics", "write_card"]
 
@@ -86,12 +95,15 @@ def _run_summary(run: Path) -> dict[str, Any]:
     return info
 
 
-def _fmt_table(metrics: Mapping[str, Mapping[str, float]]) -> str:
+def _fmt_table(metrics: Mapping[str, Mapping[str, float]], every_split: bool = False) -> str:
+    """A row per split: the subset splits, or (``every_split``) every test set ``metrics`` has."""
+    splits = [s for s in ALL_TEST_SPLITS if s in metrics] if every_split else SUBSET_SPLITS
     lines = ["| split | part acc % | V2V cm | MPJPE cm | rot err deg |", "|---|---:|---:|---:|---:|"]
-    for split in SUBSET_SPLITS:
+    for split in splits:
         m = metrics.get(split) or {}
         cells = [format_value(m.get(k)) for k in METRICS]
-        lines.append(f"| {split} | " + " | ".join(cells) + " |")
+        label = f"{split} ({SPLIT_LABELS[split]})" if every_split and split in SPLIT_LABELS else split
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -122,7 +134,11 @@ def write_card(path: Path, info: Mapping[str, Any], hparams: Mapping[str, Any], 
         "",
         f"Load: `arteq.io.runs.load_module('{info['name']}')`, evaluate: "
         f"`python -m arteq.eval ckpt_path={info['name']} data.eval_augment=so3`, fit scans: "
-        "`arteq-fit SCAN... --out DIR` (the default model).",
+        + (
+            "`arteq-fit SCAN... --out DIR` (the default model)."
+            if info["name"] == DEFAULT_MODEL
+            else f"`arteq-fit SCAN... --out DIR --ckpt {info['name']}`."
+        ),
         "",
         "## Model",
         f"- ArtEq network, {params:,} parameters; body model `{hparams['body_model'].get('name')}` "
@@ -145,9 +161,11 @@ def write_card(path: Path, info: Mapping[str, Any], hparams: Mapping[str, Any], 
             lines += [f"- {x}" for x in v]
         elif v:
             lines.append(f"- {v}")
-    lines += ["", "## Test metrics (128 clouds per split, the run's own test sets)", ""]
+    source = (info.get("stage2") or {}).get("metrics_from")
+    source = f"`python -m arteq.eval` on the checkpoint, {source}" if source else "the run's own test sets"
+    lines += ["", f"## Test metrics (128 clouds per split, {source})", ""]
     if info.get("test_metrics"):
-        lines.append(_fmt_table(info["test_metrics"]))
+        lines.append(_fmt_table(info["test_metrics"], every_split=True))
     if info.get("test_breakdown"):  # per age band and per build (test sets of the all-ages prior)
         lines += ["", breakdown_markdown(info["test_breakdown"], level="##").rstrip()]
     lines += [
@@ -175,21 +193,39 @@ def export(
     training: str | None = None,
     hardware: str | None = None,
     breakdown_from: Path | None = None,
+    metrics_from: Path | None = None,
 ) -> Path:
     """Export ``run``'s best checkpoint as ``<name>.ckpt`` with its card ``<name>.md`` (module docstring).
 
     ``breakdown_from``: a ``metrics.json`` (or its folder) of ``python -m arteq.eval`` on that checkpoint
     whose ``breakdown`` (test metrics per age band and build) the card shows, for a run whose own test
-    wrote none (trained before the breakdown existed); by default the run's own ``breakdown``."""
+    wrote none (trained before the breakdown existed); by default the run's own ``breakdown``.
+
+    ``run`` may also be a checkpoint file (a resumable checkpoint whose run folder is not kept); its test
+    metrics (and breakdown) then come from ``metrics_from``, the ``metrics.json`` (or its folder) of
+    ``python -m arteq.eval`` on it."""
     from arteq.io.runs import find_checkpoint
 
-    ckpt = find_checkpoint(run, "best")
+    run = Path(run)
+    if run.is_file() and metrics_from is None:
+        raise ValueError(f"{run}: a checkpoint file needs --metrics-from (an arteq.eval metrics.json on it)")
+    ckpt = run if run.is_file() else find_checkpoint(run, "best")
     state = read_checkpoint(ckpt)  # once: a live run may replace it
     out = PRETRAINED_DIR / f"{name}.ckpt"
     export_weights(state, out, {"name": name, "source_checkpoint": ckpt.name})
     module = load_module(out)
     subset = subset_metrics(module, subset_n)
-    summary = _run_summary(run)
+    summary = _run_summary(run) if run.is_dir() else {"run": str(run)}
+    if metrics_from is not None:
+        path = Path(metrics_from)
+        path = path / "metrics.json" if path.is_dir() else path
+        evaluated = json.loads(path.read_text())
+        if not evaluated.get("metrics"):
+            raise ValueError(f"{path}: no test metrics")
+        summary["metrics"] = evaluated["metrics"]
+        summary["metrics_from"] = str(path)
+        if evaluated.get("breakdown"):
+            summary["breakdown"] = evaluated["breakdown"]
     breakdown = summary.get("breakdown")
     if breakdown_from is not None:
         path = Path(breakdown_from)
@@ -239,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m arteq.pretrained.card", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     e = sub.add_parser("export", help="export a run's best checkpoint as a shipped model with its card")
-    e.add_argument("run", type=Path)
+    e.add_argument("run", type=Path, help="a run folder, or a checkpoint file (with --metrics-from)")
     e.add_argument("--name", default="anny22")
     e.add_argument("--stage1-run", type=Path)
     e.add_argument("--notes")
@@ -252,12 +288,17 @@ def main(argv: list[str] | None = None) -> int:
         help="metrics.json (or its folder) of `python -m arteq.eval` on the run's checkpoint whose "
         "per-age-band and per-build breakdown the card shows (default: the run's own)",
     )  # fmt: skip
+    e.add_argument(
+        "--metrics-from", type=Path,
+        help="metrics.json (or its folder) of `python -m arteq.eval` on the checkpoint: the card's test "
+        "metrics (needed when RUN is a checkpoint file)",
+    )  # fmt: skip
     c = sub.add_parser("check", help="recompute a shipped model's subset metrics")
     c.add_argument("name", nargs="?", default="anny22")
     a = ap.parse_args(argv)
     if a.cmd == "export":
         print(export(a.run, a.name, a.stage1_run, a.notes, a.subset, a.command, a.training, a.hardware,
-                     a.breakdown_from))  # fmt: skip
+                     a.breakdown_from, a.metrics_from))  # fmt: skip
         return 0
     return check(a.name)
 
