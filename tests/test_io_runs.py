@@ -57,6 +57,8 @@ def test_find_checkpoint_and_config(tmp_path):
 def test_method_names_from_config():
     assert method_name({}) == "ArtEq"
     assert method_name({"model": {"net": {"parent_conditioning": False}}}) == "ArtEq nc"
+    local = {"model": {"net": {"parent_conditioning": "invariant", "backbone": {"normalize": True}}}}
+    assert method_name(local) == "ArtEq part-local invariant-parent"
     assert method_name({"model": {"net": {"arch": "pointnet2"}}, "data": {"augment": "so3"}}) == (
         "PointNet++ + SO(3) aug"
     )

@@ -164,13 +164,16 @@ def architecture(cfg: Mapping[str, Any] | None) -> str:
 def base_method_name(cfg: Mapping[str, Any] | None) -> str:
     """Method without its augmentation suffix: ``ArtEq``, ``ArtEq nc`` (no parent conditioning),
     ``ArtEq invariant-parent`` (the parent's group-mean feature instead of its token at the same group
-    element), ``PointNet++``..."""
+    element), ``ArtEq part-local ...`` (``model=arteq_local``: count-normalised neighbourhoods),
+    ``PointNet++``..."""
     from arteq.models.heads import parent_mode
     from arteq.models.registry import display_name
 
     arch = architecture(cfg)
     name = display_name(arch)
     if arch == "arteq":
+        if config_get(cfg, "model.net.backbone.normalize", False):  # model=arteq_local: neighbour means
+            name += " part-local"
         mode = parent_mode(config_get(cfg, "model.net.parent_conditioning", True))
         name += {"none": " nc", "invariant": " invariant-parent"}.get(mode, "")
     return name
