@@ -161,3 +161,21 @@ def test_group_ce_needs_a_pose_head():
     with pytest.raises(ValueError, match="group_ce"):
         arteq_losses({"betas": torch.zeros(1, 10)}, {"global_rotmats": torch.eye(3)[None]}, {"group_ce": 1.0},
                      torch.ones(3))  # fmt: skip
+
+
+def test_group_self_attention_is_multihead_attention_with_its_keys():
+    # written as plain batched products for speed: the same map as nn.MultiheadAttention with the same
+    # parameters, and the same state-dict keys (older checkpoints load)
+    from arteq.models.heads import GroupSelfAttention
+
+    torch.manual_seed(0)
+    m = GroupSelfAttention(16, 4).double()
+    x = torch.randn(3, 60, 16, dtype=torch.float64, requires_grad=True)
+    ref = x + m.attn(x, x, x, need_weights=False)[0]
+    got = m(x)
+    assert torch.allclose(got, ref, atol=1e-12)
+    g_ref = torch.autograd.grad(ref.square().sum(), x)[0]
+    g_got = torch.autograd.grad(got.square().sum(), x)[0]
+    assert torch.allclose(g_got, g_ref, atol=1e-10)
+    assert set(m.state_dict()) == {"attn.in_proj_weight", "attn.in_proj_bias", "attn.out_proj.weight",
+                                   "attn.out_proj.bias"}  # fmt: skip
