@@ -149,3 +149,20 @@ def test_tab2_says_why_a_network_is_above_the_floor_on_id(tmp_path):
     # no note when every network is below the floor on ID
     make_run(tmp_path / "low", "a", v2v=(2.0, 5.0), floor=floor)
     assert _table(build_tables(find_runs([tmp_path / "low"])), "tab2_v2v_mpjpe").note == ""
+
+
+def test_points_table_keeps_the_network_trained_at_several_counts(tmp_path):
+    # a sweep of the part-local network (parent-conditioning rows at 500 points only, its own network also
+    # at 1000) beside the default network at 500: Tab. S1 is the network with two point counts
+    root = tmp_path / "runs"
+    local = {"backbone": {"normalize": True}}
+    for name, pc, pts, acc in (("l_inv", "invariant", 500, 40.0), ("l_al", "aligned", 500, 46.0),
+                               ("l_1000", "invariant", 1000, 44.0), ("old", True, 500, 38.0)):  # fmt: skip
+        d = make_run(root, name, pc=pc, points=pts, acc=(acc, acc / 2))
+        if name.startswith("l_"):
+            m = json.loads((d / "metrics.json").read_text())
+            m["config"]["model"]["net"].update(local)
+            (d / "metrics.json").write_text(json.dumps(m))
+    s1 = _table(build_tables(find_runs([root])), "tabS1_points")
+    assert s1.title == "Tab. S1: ArtEq part-local invariant-parent by number of input points"
+    assert [r[:2] for r in s1.rows] == [["500", "40.00"], ["1000", "44.00"]]

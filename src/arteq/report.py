@@ -135,15 +135,26 @@ def build_tables(runs: list[Run]) -> list[Table]:
     )  # fmt: skip
 
     # Tab. S1: ArtEq (parent conditioning, no augmentation) by point count.
+    # The networks trained at more than one point count (the ablation's own network; a sweep that mixes
+    # networks, e.g. model=arteq_local's parent-conditioning rows at 500 points only, keeps them apart).
     base = [r for r in learned if r.arch == "arteq" and r.parent_conditioning and r.augment == "none"]
+    counts: dict[str, set] = {}
+    for r in base:
+        counts.setdefault(r.base_name, set()).add(r.num_points)
+    names = sorted(n for n, pts in counts.items() if len(pts) > 1) or sorted(counts)
+    several = len(names) > 1
     rows = []
-    for _n, r in sorted(latest_by(base, lambda r: r.num_points).items(), key=lambda kv: kv[0] or 0):
-        rows.append(
-            [_pts(r)] + [_fmt(r.metric(s, m)) for m in ("part_acc", "v2v_cm", "mpjpe_cm") for s in SPLITS]
-        )
+    for (name, _n), r in sorted(
+        latest_by([r for r in base if r.base_name in names], lambda r: (r.base_name, r.num_points)).items(),
+        key=lambda kv: (kv[0][0], kv[0][1] or 0),
+    ):
+        cells = [_fmt(r.metric(s, m)) for m in ("part_acc", "v2v_cm", "mpjpe_cm") for s in SPLITS]
+        rows.append(([name] if several else []) + [_pts(r)] + cells)
+    title = "Tab. S1: " + (names[0] if len(names) == 1 else "ArtEq") + " by number of input points"
     tables.append(
-        Table("tabS1_points", "Tab. S1: ArtEq by number of input points",
-              ["points", "part acc ID", "part acc OOD", "V2V ID", "V2V OOD", "MPJPE ID", "MPJPE OOD"], rows)
+        Table("tabS1_points", title,
+              (["method"] if several else []) + ["points", "part acc ID", "part acc OOD", "V2V ID", "V2V OOD",
+                                                 "MPJPE ID", "MPJPE OOD"], rows)
     )  # fmt: skip
 
     # Tab. G: every test set (the graded OOD scale between ID and the hard set), for the runs that have it.
