@@ -133,22 +133,43 @@ def run(arm: str, steps: int) -> None:
     subprocess.run(cmd, check=True, cwd=ROOT)
 
 
-def table() -> str:
+def _recorded(path: Path) -> dict[str, dict[str, list[str]]]:
+    """``{metric: {arm: cells}}`` of an existing compare.md (arms measured on another machine)."""
+    got: dict[str, dict[str, list[str]]] = {}
+    metric = None
+    for line in path.read_text().splitlines() if path.is_file() else []:
+        if line.startswith("**") and line.endswith("**"):
+            metric = line.strip("*")
+        elif metric and line.startswith("| ") and not line.startswith("| arm "):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            got.setdefault(metric, {})[cells[0]] = cells[1:]
+    return got
+
+
+def table(recorded: Path | None = None) -> str:
+    """Every arm's test metrics: from its run under ``outputs/compare``, else its row in ``recorded``
+    (the committed compare.md: arms whose run folders are not on this machine keep their rows)."""
     from arteq.results import METRIC_KEYS, SPLIT_LABELS, TEST_SPLITS
 
-    rows = []
+    old = _recorded(recorded) if recorded else {}
+    rows = {}
     for arm in ARMS:
         f = OUT / arm / "metrics.json"
         if f.exists():
-            rows.append((arm, json.loads(f.read_text())["metrics"]))
-    if not rows:
+            rows[arm] = json.loads(f.read_text())["metrics"]
+    if not rows and not old:
         return "no finished arm under " + str(OUT)
     out = []
     for m in METRIC_KEYS:
         out += [f"**{m}**", "", "| arm | " + " | ".join(SPLIT_LABELS[s] for s in TEST_SPLITS) + " |",
                 "|---|" + "---:|" * len(TEST_SPLITS)]  # fmt: skip
-        for arm, res in rows:
-            cells = [f"{res[s][m]:.2f}" if s in res else "–" for s in TEST_SPLITS]
+        for arm in ARMS:
+            if arm in rows:
+                cells = [f"{rows[arm][s][m]:.2f}" if s in rows[arm] else "–" for s in TEST_SPLITS]
+            elif arm in old.get(m, {}):
+                cells = old[m][arm]
+            else:
+                continue
             out.append(f"| {arm} | " + " | ".join(cells) + " |")
         out.append("")
     return "\n".join(out)
@@ -166,9 +187,10 @@ def main() -> None:
     for arm in args.arms:
         run(arm, args.steps)
     if args.table or not args.arms:
-        text = table()
+        path = ROOT / "experiments" / "articulated" / "compare.md"
+        text = table(path)
         print(text)
-        (ROOT / "experiments" / "articulated" / "compare.md").write_text(text + "\n")
+        path.write_text(text + "\n")
 
 
 if __name__ == "__main__":
