@@ -24,6 +24,8 @@ OUT = ROOT / "outputs" / "compare"
 OLD_BACKBONE = [
     "model.net.backbone.radii=[0.253,0.3573,0.506,0.506]", "model.net.backbone.strides=[2,1,2,1]",
     "model.net.backbone.neighbours=[32,16,32,16]", "model.net.backbone.normalize=false",
+    # the default network's head and loss as these arms ran (the default now has torso sides and group_ce 1)
+    "model.net.sides=learned", "model.loss_weights.group_ce=0.0",
 ]  # fmt: skip
 # model=arteq_local as first screened (before its geometry tokens, group cross-entropy and torso-frame sides
 # became its defaults)
