@@ -124,3 +124,9 @@ def test_backbone_radii_follow_point_density_and_the_local_network_keeps_them_me
     assert list(_compose(["data.num_points=5000"]).model.net.backbone.radii) == paper
     with pytest.raises(ValueError, match="point counts"):
         radii_for_points(paper, 0)
+
+
+def test_aligned_variant_sets_the_part_local_networks_parent_row():
+    cfg = _compose(["+experiment=ablation_all", "+sweep/variant=arteq_aligned", "model=arteq_local"])
+    assert cfg.variant == "arteq_aligned" and cfg.model.net.parent_conditioning == "aligned"
+    assert cfg.model.net.backbone.normalize  # still the part-local network
