@@ -3,6 +3,8 @@
 python benchmarks/bench_train_step.py [--points 500 1000 2500 5000] [--steps 6] [--impl fast|reference|both]
 python benchmarks/bench_train_step.py --profile            # torch.profiler table of the default step
 python benchmarks/bench_train_step.py --old-tree /path/to/older/checkout   # also time that tree's code
+python benchmarks/bench_train_step.py --impl fast --old-tree DIR --old-override --override model=arteq_local --rounds 3
+    # that tree's default network (no overrides) against today's part-local one, three interleaved rounds
 
 Each (points, impl) runs in a fresh subprocess so that its peak RSS is its own. The batch is generated
 once per run by the project's own datamodule (stage-2 training batches, batch size of the config); the
@@ -127,6 +129,14 @@ def main() -> None:
         help="glibc allocator: as is, or arteq.runtime.tune_cpu_allocator() (what the entry points do)",
     )
     ap.add_argument("--old-tree", type=Path, help="another checkout: its src/ and conf/ give rows 'old'")
+    ap.add_argument(
+        "--old-override",
+        nargs="*",
+        default=None,
+        help="Hydra overrides for the --old-tree rows instead of --override (e.g. the old default network "
+        "against --override model=arteq_local)",
+    )
+    ap.add_argument("--rounds", type=int, default=1, help="repeat every row this many times, interleaved")
     ap.add_argument("--conf", default=CONF, help=argparse.SUPPRESS)
     ap.add_argument("--one", nargs=2, metavar=("POINTS", "IMPL"), help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -146,7 +156,7 @@ def main() -> None:
     base_impl = impls[0]
     print(f"| points | impl | batch | s/step | steps/s | peak MB | speed-up vs {base_impl} |")
     print("|---:|---|---:|---:|---:|---:|---:|")
-    for n in a.points:
+    for n, _round in ((n, r) for n in a.points for r in range(a.rounds)):
         ref = None
         for impl in impls:
             env = None
@@ -167,7 +177,8 @@ def main() -> None:
                 "--conf",
                 conf,
             ]
-            cmd += ["--override", *a.override]
+            overrides = a.old_override if impl == "old" and a.old_override is not None else a.override
+            cmd += ["--override", *overrides]
             out = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
             if out.returncode != 0:
                 print(f"| {n} | {impl} | failed: {out.stderr.strip().splitlines()[-1]} |||||")
