@@ -3,8 +3,8 @@
 python benchmarks/bench_train_step.py [--points 500 1000 2500 5000] [--steps 6] [--impl fast|reference|both]
 python benchmarks/bench_train_step.py --profile            # torch.profiler table of the default step
 python benchmarks/bench_train_step.py --old-tree /path/to/older/checkout   # also time that tree's code
-python benchmarks/bench_train_step.py --impl fast --old-tree DIR --old-override --override model=arteq_local --rounds 3
-    # that tree's default network (no overrides) against today's part-local one, three interleaved rounds
+python benchmarks/bench_train_step.py --impl fast --old-tree DIR --old-override --override model=arteq_local
+    --rounds 3   # (one command) that tree's default network against today's part-local one, interleaved
 
 Each (points, impl) runs in a fresh subprocess so that its peak RSS is its own. The batch is generated
 once per run by the project's own datamodule (stage-2 training batches, batch size of the config); the

@@ -343,3 +343,31 @@ def test_card_export_of_a_checkpoint_file_takes_every_test_set_of_an_eval(
     text = (tmp_path / "pre" / "m.md").read_text()
     assert "| test_ood_limb1 (" in text and "| 7.00 | 2.00 | 3.00 | 4.00 |" in text
     assert "arteq.eval` on the checkpoint" in text
+
+
+def test_card_export_with_a_bad_metrics_file_names_it_and_writes_nothing(tmp_path, monkeypatch):
+    """A missing, unreadable or empty metrics.json: an error naming the file, before anything is written."""
+    import arteq.pretrained.card as card
+
+    monkeypatch.setattr(card, "PRETRAINED_DIR", tmp_path / "pre")
+    (tmp_path / "pre").mkdir()
+    ckpt = tmp_path / "resume.ckpt"
+    ckpt.write_bytes(b"never read: the metrics files are checked first")
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    good = tmp_path / "good.json"
+    good.write_text(json.dumps({"metrics": {"test_id": {"part_acc": 1.0}}}))
+    missing = tmp_path / "missing.json"
+    empty = tmp_path / "empty.json"
+    empty.write_text(json.dumps({"metrics": {}}))
+    cases = [({"metrics_from": empty}, empty, "no test metrics"),
+             ({"metrics_from": missing}, missing, "no such metrics file"),
+             ({"metrics_from": bad}, bad, "not a readable"),
+             ({"metrics_from": tmp_path / "pre"}, tmp_path / "pre" / "metrics.json", "no such metrics file"),
+             ({"metrics_from": good, "breakdown_from": bad}, bad, "not a readable"),
+             ({"metrics_from": good, "breakdown_from": good}, good, "no breakdown")]  # fmt: skip
+    for kwargs, path, match in cases:
+        with pytest.raises((ValueError, FileNotFoundError), match=match) as err:
+            card.export(ckpt, "m", None, None, 2, **kwargs)
+        assert str(path) in str(err.value)
+    assert not list((tmp_path / "pre").iterdir())

@@ -183,6 +183,21 @@ def write_card(path: Path, info: Mapping[str, Any], hparams: Mapping[str, Any], 
     path.write_text("\n".join(lines) + "\n")
 
 
+def _read_eval(path: Path | str) -> tuple[Path, dict[str, Any]]:
+    """``(file, contents)`` of an ``arteq.eval`` ``metrics.json`` (or the folder holding it)."""
+    path = Path(path)
+    path = path / "metrics.json" if path.is_dir() else path
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such metrics file (the metrics.json of `python -m arteq.eval`)")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: not a readable metrics.json ({exc})") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: not a metrics.json of arteq.eval (a JSON object expected)")
+    return path, data
+
+
 def export(
     run: Path,
     name: str,
@@ -209,30 +224,26 @@ def export(
     run = Path(run)
     if run.is_file() and metrics_from is None:
         raise ValueError(f"{run}: a checkpoint file needs --metrics-from (an arteq.eval metrics.json on it)")
+    # every input is read before anything is written: a bad metrics file leaves no half-exported model
+    evaluated = _read_eval(metrics_from) if metrics_from is not None else None
+    if evaluated is not None and not evaluated[1].get("metrics"):
+        raise ValueError(f"{evaluated[0]}: no test metrics")
+    extra = _read_eval(breakdown_from) if breakdown_from is not None else None
+    if extra is not None and not extra[1].get("breakdown"):
+        raise ValueError(f"{extra[0]}: no breakdown (test sets not drawn with data.shape_prior=allages?)")
     ckpt = run if run.is_file() else find_checkpoint(run, "best")
     state = read_checkpoint(ckpt)  # once: a live run may replace it
+    summary = _run_summary(run) if run.is_dir() else {"run": str(run)}
+    if evaluated is not None:
+        summary["metrics"] = evaluated[1]["metrics"]
+        summary["metrics_from"] = str(evaluated[0])
+        if evaluated[1].get("breakdown"):
+            summary["breakdown"] = evaluated[1]["breakdown"]
+    breakdown = extra[1]["breakdown"] if extra is not None else summary.get("breakdown")
     out = PRETRAINED_DIR / f"{name}.ckpt"
     export_weights(state, out, {"name": name, "source_checkpoint": ckpt.name})
     module = load_module(out)
     subset = subset_metrics(module, subset_n)
-    summary = _run_summary(run) if run.is_dir() else {"run": str(run)}
-    if metrics_from is not None:
-        path = Path(metrics_from)
-        path = path / "metrics.json" if path.is_dir() else path
-        evaluated = json.loads(path.read_text())
-        if not evaluated.get("metrics"):
-            raise ValueError(f"{path}: no test metrics")
-        summary["metrics"] = evaluated["metrics"]
-        summary["metrics_from"] = str(path)
-        if evaluated.get("breakdown"):
-            summary["breakdown"] = evaluated["breakdown"]
-    breakdown = summary.get("breakdown")
-    if breakdown_from is not None:
-        path = Path(breakdown_from)
-        path = path / "metrics.json" if path.is_dir() else path
-        breakdown = json.loads(path.read_text()).get("breakdown")
-        if not breakdown:
-            raise ValueError(f"{path}: no breakdown (test sets not drawn with data.shape_prior=allages?)")
     info = {
         "name": name,
         "source_checkpoint": f"{ckpt} (global step {int(state.get('global_step', -1))})",
