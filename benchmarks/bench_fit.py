@@ -22,14 +22,30 @@ import roma
 import torch
 
 
+def refine_config(args):
+    """``RefineConfig`` with ``--iters`` and every ``--set KEY=VALUE`` (its fields, e.g. ``sigma_end=2``)."""
+    import dataclasses
+
+    from arteq.fit.refine import RefineConfig
+
+    fields = {f.name: f.type for f in dataclasses.fields(RefineConfig)}
+    kw = {"iters": args.iters}
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        if not sep or key not in fields:
+            raise SystemExit(f"--set {item!r}: expected KEY=VALUE with KEY one of {', '.join(fields)}")
+        kw[key] = type(getattr(RefineConfig(), key))(value)
+    return RefineConfig(**kw)
+
+
 def perturbed(args) -> None:
     from arteq.body import load_body_model
     from arteq.data.dataset import BodyScanDataset
     from arteq.data.poses import SyntheticIDPoses, SyntheticOODPoses
-    from arteq.fit.refine import RefineConfig, refine
+    from arteq.fit.refine import refine
 
     body = load_body_model("anny22")
-    cfg = RefineConfig(iters=args.iters)
+    cfg = refine_config(args)
     print(f"| split | start V2V | V2V after 10 / 20 / 30 / {args.iters} it | s per scan (B={args.batch}) |")
     print("|---|---:|---|---:|")
     for split in ("test_id", "test_ood"):
@@ -79,12 +95,11 @@ def perturbed(args) -> None:
 def network(args) -> None:
     from arteq.data import BodyScanDataModule
     from arteq.fit.api import Fitter
-    from arteq.fit.refine import RefineConfig
 
     rows = []
     for refine_on in (False, True):
         fitter = Fitter(ckpt=args.ckpt, device=args.device, refine=refine_on, points=5000,
-                        refine_config=RefineConfig(iters=args.iters), check=False, anny=False)  # fmt: skip
+                        refine_config=refine_config(args), check=False, anny=False)  # fmt: skip
         dm = BodyScanDataModule(body_model=dict(fitter.module.hparams.body_model), num_points=5000,
                                 test_size=args.samples, batch_size=args.batch, num_workers=0)  # fmt: skip
         dm.setup("test")
@@ -126,6 +141,7 @@ def main() -> None:
     ap.add_argument("--ckpt", default=None)
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
