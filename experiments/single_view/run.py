@@ -101,8 +101,9 @@ def scans(n: int, body) -> dict[str, dict[str, torch.Tensor]]:
     return out
 
 
-def run_arm(arm: str, n: int, threads: int, ckpt: str | None = None, splits=None) -> list[dict]:
+def run_arm(arm: str, n: int, threads: int, ckpt: str | None = None, splits=None, refine_set=()) -> list:
     from arteq.fit.api import Fitter
+    from arteq.fit.refine import RefineConfig
 
     torch.set_num_threads(threads)
     from arteq.fit.partial import HypothesisConfig
@@ -110,6 +111,8 @@ def run_arm(arm: str, n: int, threads: int, ckpt: str | None = None, splits=None
     kw = dict(ARMS[arm])
     if isinstance(kw.get("hypotheses"), dict):
         kw["hypotheses"] = HypothesisConfig(**kw["hypotheses"])
+    if refine_set:  # --set KEY=VALUE: RefineConfig fields (numbers)
+        kw["refine_config"] = RefineConfig(**{k: type(getattr(RefineConfig(), k))(v) for k, v in refine_set})
     fitter = Fitter(ckpt=ckpt, device="cpu", anny=False, **kw)
     log = HypothesisLog()
     body = fitter.body
@@ -225,13 +228,15 @@ def main() -> None:
     ap.add_argument("--out", default=str(HERE / "results"), help="folder of the results files")
     ap.add_argument("--table", action="store_true", help="write table.md from the results present")
     ap.add_argument("--splits", nargs="*", default=None, help="only these views (full front side back top)")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for arm in args.arm:
-        rows = run_arm(arm, args.scans, args.threads, args.ckpt, args.splits)
+        refine_set = [kv.split("=", 1) for kv in args.set]
+        rows = run_arm(arm, args.scans, args.threads, args.ckpt, args.splits, refine_set)
         meta = {"arm": arm, "scans_per_view": args.scans, "threads": args.threads, "fitter": ARMS[arm],
-                "ckpt": args.ckpt or "anny22"}  # fmt: skip
+                "ckpt": args.ckpt or "anny22", "refine_set": dict(refine_set)}  # fmt: skip
         (out / f"{arm}.json").write_text(json.dumps({**meta, "rows": rows}, indent=1))
     if args.table:
         text = table(out)

@@ -50,7 +50,7 @@ class RefineConfig:
 
     iters: int = 40
     sigma_start: float = 8.0  # cm
-    sigma_end: float = 1.0  # cm
+    sigma_end: float = 5.0  # cm; 1.0 before 2026-12-02 (experiments/fitting/README.md, section 1b)
     w_p2p: float = 0.1
     w_m2s: float = 1.0
     m2s_vertices: int = 2000
