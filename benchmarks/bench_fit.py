@@ -24,18 +24,9 @@ import torch
 
 def refine_config(args):
     """``RefineConfig`` with ``--iters`` and every ``--set KEY=VALUE`` (its fields, e.g. ``sigma_end=2``)."""
-    import dataclasses
-
     from arteq.fit.refine import RefineConfig
 
-    fields = {f.name: f.type for f in dataclasses.fields(RefineConfig)}
-    kw = {"iters": args.iters}
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep or key not in fields:
-            raise SystemExit(f"--set {item!r}: expected KEY=VALUE with KEY one of {', '.join(fields)}")
-        kw[key] = type(getattr(RefineConfig(), key))(value)
-    return RefineConfig(**kw)
+    return RefineConfig.from_strings(args.set, iters=args.iters)
 
 
 def perturbed(args) -> None:

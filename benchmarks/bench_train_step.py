@@ -156,7 +156,7 @@ def main() -> None:
     base_impl = impls[0]
     print(f"| points | impl | batch | s/step | steps/s | peak MB | speed-up vs {base_impl} |")
     print("|---:|---|---:|---:|---:|---:|---:|")
-    for n, _round in ((n, r) for n in a.points for r in range(a.rounds)):
+    for n in [p for p in a.points for _ in range(a.rounds)]:
         ref = None
         for impl in impls:
             env = None

@@ -134,3 +134,16 @@ def test_single_body_check_passes_a_body_and_flags_two_bodies_and_a_sphere(body)
     sph = 0.5 * sph / np.linalg.norm(sph, axis=1, keepdims=True) + s["vertices"].mean(0)
     q3 = _quality(body, sph, s, -np.ones(4000, int))
     assert {"low_inliers", "low_coverage"} <= set(q3["flags"]), q3
+
+
+def test_refine_config_from_command_line_strings():
+    """``--set KEY=VALUE``: each value read as its field's type; unknown keys and bad values are errors."""
+    from arteq.fit.refine import RefineConfig
+
+    cfg = RefineConfig.from_strings(["sigma_end=3", "iters=12", "backend=torch"], iters=7)
+    assert (cfg.sigma_end, cfg.iters, cfg.backend) == (3.0, 12, "torch")
+    assert RefineConfig.from_strings([], iters=7).iters == 7
+    with pytest.raises(ValueError, match="KEY one of iters"):
+        RefineConfig.from_strings(["sigma=3"])
+    with pytest.raises(ValueError, match="not of type int"):
+        RefineConfig.from_strings(["iters=1.5"])

@@ -111,8 +111,8 @@ def run_arm(arm: str, n: int, threads: int, ckpt: str | None = None, splits=None
     kw = dict(ARMS[arm])
     if isinstance(kw.get("hypotheses"), dict):
         kw["hypotheses"] = HypothesisConfig(**kw["hypotheses"])
-    if refine_set:  # --set KEY=VALUE: RefineConfig fields (numbers)
-        kw["refine_config"] = RefineConfig(**{k: type(getattr(RefineConfig(), k))(v) for k, v in refine_set})
+    if refine_set:  # --set KEY=VALUE: RefineConfig fields
+        kw["refine_config"] = RefineConfig.from_strings(refine_set)
     fitter = Fitter(ckpt=ckpt, device="cpu", anny=False, **kw)
     log = HypothesisLog()
     body = fitter.body
@@ -233,10 +233,9 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for arm in args.arm:
-        refine_set = [kv.split("=", 1) for kv in args.set]
-        rows = run_arm(arm, args.scans, args.threads, args.ckpt, args.splits, refine_set)
+        rows = run_arm(arm, args.scans, args.threads, args.ckpt, args.splits, args.set)
         meta = {"arm": arm, "scans_per_view": args.scans, "threads": args.threads, "fitter": ARMS[arm],
-                "ckpt": args.ckpt or "anny22", "refine_set": dict(refine_set)}  # fmt: skip
+                "ckpt": args.ckpt or "anny22", "refine_set": args.set}  # fmt: skip
         (out / f"{arm}.json").write_text(json.dumps({**meta, "rows": rows}, indent=1))
     if args.table:
         text = table(out)
