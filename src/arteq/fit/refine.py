@@ -87,7 +87,8 @@ class RefineConfig:
             try:
                 values[key] = kind(value)
             except ValueError:
-                raise ValueError(f"refine setting {item!r}: {value!r} is not of type {kind.__name__}") from None
+                msg = f"refine setting {item!r}: {value!r} is not of type {kind.__name__}"
+                raise ValueError(msg) from None
         return cls(**values)
 
 
