@@ -52,7 +52,7 @@ class QualityThresholds:
     extent_m_range: tuple[float, float] = (0.35, 3.0)
     #: uncertain (written, flagged): inliers, coverage, parts, |beta|, inlier RMS beyond these
     min_inlier_frac: float = 0.88
-    min_coverage: float = 0.90
+    min_coverage: float = 0.935
     min_parts: int = 15
     max_beta: float = 4.0
     max_rmse_cm: float = 1.5
