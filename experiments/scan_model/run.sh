@@ -15,7 +15,7 @@
 # (experiments/fitting/user_scans.py), and the single-view test sets.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 PYTHONUNBUFFERED=1
+export OMP_NUM_THREADS=${THREADS:-1} MKL_NUM_THREADS=${THREADS:-1} PYTHONUNBUFFERED=1  # THREADS=2 on idle cores
 RUN=${RUN:-outputs/scan_model/run3}
 ARGS=(+experiment=stage2 model=arteq_local body_model=anny_allages data.shape_prior=allages seed=0
       data.augment=so3 data.eval_augment=so3 data.train_size=4000 data.wide_poses=0.5
