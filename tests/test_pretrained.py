@@ -27,7 +27,7 @@ def test_shipped_file_is_weights_only_and_small(name):
 
 @pytest.mark.parametrize("name", SHIPPED)
 def test_shipped_model_reproduces_its_card_subset_metrics(name):
-    from arteq.pretrained.card import load_module, subset_metrics
+    from arteq.pretrained.card import load_module, reproduces, subset_metrics
 
     path = resolve_checkpoint(name)
     info = torch.load(str(path), map_location="cpu", weights_only=True)["arteq"]
@@ -35,11 +35,7 @@ def test_shipped_model_reproduces_its_card_subset_metrics(name):
     tol = float(info["subset_tolerance"])
     for split, values in info["subset_metrics"].items():
         for key, value in values.items():
-            # the card's tolerance, or 1 % of the value: a body rebuilt from anny on a fresh machine and
-            # other package builds move the metrics a little (anny22_local: rotation error +0.13 deg of 14.6,
-            # part accuracy +0.09 of 89.5); wrong weights or a broken pipeline move them far more
-            t = max(tol, 0.01 * abs(value))
-            assert abs(got[split][key] - value) <= t, (split, key, got[split][key], value)
+            assert reproduces(value, got[split][key], tol), (split, key, got[split][key], value)
 
 
 def test_unknown_name_is_a_clear_error():
