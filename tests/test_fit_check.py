@@ -51,6 +51,15 @@ def test_fit_quality_tiers_on_geometry(body):
     sph = 0.5 * sph / np.linalg.norm(sph, axis=1, keepdims=True) + v.mean(0)
     q3 = _fit(sph, v, s["betas"], parts)
     assert "no_body_surface" in q3["flags"] and verdict(q3["flags"]) == "not_single_body", q3
+    assert "sphere" in q3["flags"] and abs(q3["sphere_radius_m"] - 0.5) < 0.01, q3
+    assert q["sphere_frac"] < 0.5, q  # a body is no sphere
+    # a small ball is refused by its shape whatever the body explains of it (anny_scan fitted a child into a
+    # 0.3 m sphere: 37 % inliers, like a badly fitted acrobatic body), also one camera's view of it
+    ball = 0.3 * sph / 0.5 + rng.normal(0, 0.005, sph.shape)
+    for pts in (ball, ball[ball[:, 2] > ball[:, 2].mean()]):
+        qb = _fit(pts, v, s["betas"], parts)
+        assert "sphere" in qb["flags"] and verdict(qb["flags"]) == "not_single_body", qb
+        assert "of the points lie on a sphere of radius 0.30 m" in describe_flags(qb, ["sphere"])
     half = p[p[:, 1] > v[:, 1].mean()]
     q4 = _fit(half, v, s["betas"], parts)
     assert verdict(q4["flags"]) == "uncertain" and "low_coverage" in q4["flags"], q4

@@ -331,7 +331,8 @@ class Fitter:
     """A loaded model ready to fit clouds (keeps the network, body and tables between calls).
 
     Args:
-        ckpt: checkpoint path or shipped model name (default: the pretrained ``anny22`` model).
+        ckpt: checkpoint path or shipped model name (default: :data:`arteq.pretrained.DEFAULT_MODEL`,
+            the scan-fitting model ``anny_scan``).
         device: ``cpu``, ``cuda`` or ``auto``.
         refine: run :func:`arteq.fit.refine.refine` after the network.
         points: points of the input used by refinement and the quality check (resampled).

@@ -21,7 +21,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("inputs", nargs="+", metavar="INPUT", help="scan files, folders (recursive) or globs")
     ap.add_argument("--out", "-o", required=True, help="output folder")
-    ap.add_argument("--ckpt", default=None, help="checkpoint file or pretrained name (default: anny22)")
+    ap.add_argument(
+        "--ckpt",
+        default=None,
+        help="checkpoint file or pretrained name (default: anny_scan, the scan-fitting model; anny22: the "
+        "research model, better on everyday adult poses)",
+    )
     ap.add_argument("--refine", action=argparse.BooleanOptionalAction, default=True,
                     help="refine the network's fit against the scan (default: on)")  # fmt: skip
     ap.add_argument("--points", type=int, default=5000, help="input resampled to this many points (5000)")

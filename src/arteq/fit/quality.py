@@ -23,6 +23,12 @@ Values (``fit_quality``) and the reason codes they set (thresholds: :class:`Qual
 - ``max_abs_beta``: shape plausibility (units of sigma); uncertain above ``max_beta``
   (``implausible_shape``: children and extreme builds outside an adult shape space).
 - ``extent_m``: robust size of the cloud; refused outside ``extent_m_range`` (``wrong_size``).
+- ``sphere_frac``: the share of the points within ``sphere_tol_cm`` of the cloud's least-squares sphere;
+  refused at ``max_sphere_frac`` or more (``sphere``: a ball, or one camera's view of it). A body with
+  an all-ages shape space can shrink to a 0.6 m ball and explain a third of it, so inliers alone do not
+  refuse it (a sphere of radius 0.3 m fitted by ``anny_scan``: 37 % inliers, like a badly fitted
+  acrobatic body). Bodies measured 0.01-0.45 (the 42 scans of the user-scan suite, a child's backbend
+  highest), spheres 1.0.
 
 Clutter removal (:mod:`arteq.fit.clean`) adds the refusing flag ``second_body`` when the scan holds a
 second body-sized cluster apart from the fitted one (two people).
@@ -35,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Reason codes that refuse a fit (the scan is not one body); every other code makes it uncertain.
-REFUSE_FLAGS = ("no_body_surface", "unexplained_points", "wrong_size", "second_body")
+REFUSE_FLAGS = ("no_body_surface", "unexplained_points", "wrong_size", "second_body", "sphere")
 
 
 @dataclass
@@ -56,6 +62,9 @@ class QualityThresholds:
     min_parts: int = 15
     max_beta: float = 4.0
     max_rmse_cm: float = 1.5
+    #: refused: this share of the points or more on one sphere (within ``sphere_tol_cm`` of it)
+    max_sphere_frac: float = 0.8
+    sphere_tol_cm: float = 3.0
 
 
 def fit_quality(
@@ -99,6 +108,7 @@ def fit_quality(
     q = np.percentile(proj, [1, 99], axis=0)
     extent = float((q[1] - q[0]).max())
     max_beta = float(np.abs(betas).max()) if len(betas) else 0.0
+    sphere_frac, sphere_r = sphere_fit(points, th.sphere_tol_cm / 100)
     values = {
         "inlier_frac": inlier_frac,
         "rmse_in_cm": rmse,
@@ -109,9 +119,25 @@ def fit_quality(
         "extent_m": extent,
         "mean_dist_cm": float(d.mean() * 100),
         "inlier_cm": th.inlier_cm,
+        "sphere_frac": sphere_frac,
+        "sphere_radius_m": sphere_r,
     }
     values["flags"] = quality_flags(values, th)
     return values
+
+
+def sphere_fit(points: np.ndarray, tol_m: float = 0.03) -> tuple[float, float]:
+    """``(share of the points within tol_m of it, radius m)`` of the least-squares (algebraic) sphere of
+    ``points [N, 3]``: ``|p|^2 = 2 c.p + d``, ``r^2 = d + |c|^2``."""
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) < 4:
+        return 0.0, 0.0
+    p = p - p.mean(0)
+    a = np.concatenate([2 * p, np.ones((len(p), 1))], 1)
+    sol = np.linalg.lstsq(a, (p**2).sum(1), rcond=None)[0]
+    r = float(np.sqrt(max(sol[3] + sol[:3] @ sol[:3], 0.0)))
+    d = np.abs(np.linalg.norm(p - sol[:3], axis=1) - r)
+    return float((d < tol_m).mean()), r
 
 
 def quality_flags(q: dict, thresholds: QualityThresholds | None = None) -> list[str]:
@@ -135,6 +161,8 @@ def quality_flags(q: dict, thresholds: QualityThresholds | None = None) -> list[
         flags.append("implausible_shape")
     if q["rmse_in_cm"] > th.max_rmse_cm:
         flags.append("high_residual")
+    if q.get("sphere_frac", 0.0) >= th.max_sphere_frac:  # records written before the value: no sphere
+        flags.append("sphere")
     return flags
 
 
@@ -162,6 +190,10 @@ def describe_flags(q: dict, flags: list[str] | None = None) -> str:
         "missing_parts": f"points on only {q['parts_covered']} of 22 body parts",
         "implausible_shape": f"implausible shape (|beta| {q['max_abs_beta']:.1f})",
         "wrong_size": f"size {q['extent_m']:.2f} m",
+        "sphere": (
+            f"{q.get('sphere_frac', 0.0):.0%} of the points lie on a sphere of radius "
+            f"{q.get('sphere_radius_m', 0.0):.2f} m"
+        ),
         "second_body": (
             f"a second body-sized object beside it ({q.get('second_body_points', 0)} points, "
             f"{q.get('second_body_extent_m', 0.0):.1f} m across, "

@@ -17,7 +17,7 @@ import torch
 #: Folder of the shipped models.
 PRETRAINED_DIR = Path(__file__).resolve().parent
 #: The model tools load by default.
-DEFAULT_MODEL = "anny22"
+DEFAULT_MODEL = "anny_scan"
 
 
 def available() -> list[str]:
