@@ -362,7 +362,8 @@ def fit_scan(fitter, scan: Scan, other=None) -> dict:
         rec["joints15_cm"] = joint_error_cm(r.joints.astype(np.float64), scan.joints)
     if scan.truth:
         rec["truth"] = dict(scan.truth)
-    if r.anny and "stature_m" in scan.truth:  # non-bodies have no truth: a written fit of one is a false acceptance
+    # non-bodies have no truth: a written fit of one is a false acceptance, counted by goals()
+    if r.anny and "stature_m" in scan.truth:
         m = r.anny["measurements"]
         rec["stature_err_cm"] = (m["stature_m"] - scan.truth["stature_m"]) * 100
         rec["waist_err_cm"] = (m["waist_circumference_m"] - scan.truth["waist_circumference_m"]) * 100
