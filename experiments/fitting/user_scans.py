@@ -520,10 +520,9 @@ def run_people(a) -> None:
         print(f"wrote the children and clutter scans to {out}")
         if a.export_only:
             return
-    fitter = Fitter(ckpt=a.ckpt, device="cpu", refine=True, points=5000, check=True, clean=True, anny=True)
-    other = Fitter(
-        ckpt=a.ckpt, device="cpu", refine=True, points=5000, check=True, clean=True, anny=False, seed=1
-    )
+    cross = not a.no_crossing
+    fitter = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=True, crossing=cross)
+    other = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=False, seed=1, crossing=cross)
     records = []
     for s in scans:
         rec = fit_scan(fitter, s, other)
@@ -653,6 +652,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--export", default=None, help="people: write the children and clutter scans here (.npz)")
     ap.add_argument("--export-only", action="store_true", help="people: write them (--export) and stop")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--no-crossing", action="store_true",
+                    help="people: without the crossed-limb step (arteq.fit.crossing, since 2026-12-03)")
     ap.add_argument("--n", type=int, default=6, help="frames: scans per case")
     ap.add_argument("--no-refine", action="store_true", help="frames: the network alone")
     ap.add_argument("--cases", default="", help="frames: comma-separated substrings of the case names to run")

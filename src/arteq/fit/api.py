@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from arteq.fit.clean import CleanConfig, CleanResult, clean_scan
+from arteq.fit.crossing import CrossingConfig, pairs_to_try, try_swaps
 from arteq.fit.quality import REFUSE_FLAGS, QualityThresholds, describe_flags, fit_quality, verdict
 from arteq.fit.refine import RefineConfig, body_tables, refine
 from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_points
@@ -63,6 +64,8 @@ class FitResult:
     (:data:`MIN_PART_SHARE` of the points, at least :data:`MIN_PART_POINTS`). ``start_hypothesis``: for a
     refined partial scan, the refinement's start (:func:`arteq.fit.partial.pick_starts`'s info: ``picked``
     ``network`` / ``untwisted`` / ``turned <deg>``, the parts untwisted, every start's score).
+    ``crossing``: for a full scan that tried swapped limb pairs (:mod:`arteq.fit.crossing`), the fit's
+    score, each pair's score (cm) and the pair taken (``""``: none); None when none was tried.
     """
 
     name: str
@@ -102,6 +105,7 @@ class FitResult:
     part_points: np.ndarray | None = None
     parts_seen: np.ndarray | None = None
     start_hypothesis: dict | None = None  # partial scans: the refinement's start (fit.partial.pick_starts)
+    crossing: dict | None = None  # full scans: swapped limb pairs tried (fit.crossing.try_swaps)
 
     def seen_names(self, seen: bool = True) -> list[str]:
         """Names of the parts seen (or, ``seen=False``, not seen) in the scan."""
@@ -161,6 +165,7 @@ class FitResult:
             "one_sidedness": np.float64(np.nan if self.one_sidedness is None else self.one_sidedness),
             "part_points": self.part_points,
             "parts_seen": self.parts_seen,
+            "crossing_taken": np.str_((self.crossing or {}).get("taken", "")),
             **clutter,
             **npz_arrays(self.anny),
             **{k: np.asarray(v, dtype=np.float64) for k, v in q.items()},
@@ -189,6 +194,7 @@ class FitResult:
             "betas": [round(float(b), 4) for b in self.betas] if self.betas is not None else None,
             "quality": q,
             "clutter_removed": self.clean.counts if self.clean is not None else None,
+            "crossing": self.crossing,
             "anny": json_section(self.anny, self.anny_note),
             "seconds": {k: round(v, 3) for k, v in self.timings.items()},
         }
@@ -212,6 +218,7 @@ class FitResult:
             "scan_mode": self.scan_mode,
             "parts_seen": int(self.parts_seen.sum()) if self.parts_seen is not None else None,
             "parts_unseen": " ".join(self.seen_names(False)),
+            "crossing": (self.crossing or {}).get("taken", ""),
             **{
                 f"removed_{k}": (self.clean.counts[k] if self.clean is not None else None)
                 for k in ("plane", "outlier", "cluster")
@@ -357,6 +364,10 @@ class Fitter:
             (default, :class:`arteq.fit.partial.HypothesisConfig`: the network's pose with the parts it
             turned the wrong way round turned back), a ``HypothesisConfig``, or ``False`` (the network's
             start only). Full scans never use them.
+        crossing: crossed limbs on full scans (:mod:`arteq.fit.crossing`): ``True`` (default,
+            :class:`arteq.fit.crossing.CrossingConfig`), a ``CrossingConfig``, or ``False``: a refined fit
+            the check doubts, or one with a left / right pair of limb segments close together, is refitted
+            with each pair swapped and the swap kept when it explains the scan better.
     """
 
     def __init__(
@@ -376,6 +387,7 @@ class Fitter:
         partial: bool | None = None,
         view_dir: np.ndarray | list[float] | None = None,
         hypotheses: Any = True,
+        crossing: CrossingConfig | bool = True,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
 
@@ -392,6 +404,7 @@ class Fitter:
 
             hypotheses = HypothesisConfig()
         self.hypotheses = hypotheses or None
+        self.crossing = CrossingConfig() if crossing is True else (crossing or None)
 
         if points < MIN_POINTS:
             raise ValueError(f"points must be >= {MIN_POINTS}, got {points}")
@@ -540,6 +553,14 @@ class Fitter:
                 o = self.body(betas=betas.to(dtype), pose=local.to(dtype), transl=transl.to(dtype))
             verts, joints, grot = o.vertices, o.joints, o.global_rotmats
         t_ref = time.perf_counter() - t1
+        crossing: list[dict | None] = [None] * len(items)
+        t_cross = [0.0] * len(items)
+        if self.refine and self.crossing is not None:
+            fit = {"local_rotmats": local, "betas": betas, "transl": transl, "vertices": verts,
+                   "joints": joints, "global_rotmats": grot}  # fmt: skip
+            crossing, t_cross = self._crossings(ref_in, probs_ref, modes, fit)
+            local, betas, transl = fit["local_rotmats"], fit["betas"], fit["transl"]
+            verts, joints, grot = fit["vertices"], fit["joints"], fit["global_rotmats"]
         import roma
 
         pose_aa = roma.rotmat_to_rotvec(roma.special_procrustes(local.double())).cpu().numpy()
@@ -625,6 +646,7 @@ class Fitter:
                         "network": per_scan_net,
                         "refine": per_scan_ref,
                         "check": time.perf_counter() - t2,
+                        "crossing": t_cross[i],
                     },  # fmt: skip
                     body_model=str(getattr(self.body, "name", "")),
                     checkpoint=self.checkpoint_id,
@@ -635,13 +657,14 @@ class Fitter:
                     view_dir=mode["view_dir"],
                     one_sidedness=mode["score"],
                     start_hypothesis=mode.get("hypothesis"),
+                    crossing=crossing[i],
                     part_points=counts[i],
                     parts_seen=counts[i] >= max(MIN_PART_POINTS, MIN_PART_SHARE * self.points),
                 )
             )
         for i, r in enumerate(results):
             t = r.timings
-            t["total"] = t["clean"] + t["network"] + t["refine"] + t["check"]
+            t["total"] = t["clean"] + t["network"] + t["refine"] + t["check"] + t["crossing"]
             r.anny_note = self.anny_note
             if self.anny_export is not None and r.written:
                 rot = roma.rotvec_to_rotmat(torch.as_tensor(pose_aa[i], dtype=torch.float64)).numpy()
@@ -652,6 +675,43 @@ class Fitter:
                     r.anny_note = f"failed: {type(exc).__name__}: {exc}"
                     r.warnings.append(f"Anny export {r.anny_note}")
         return results
+
+    def _crossings(
+        self, ref_in: list[np.ndarray], probs_ref: np.ndarray, modes: list[dict[str, Any]], fit: dict
+    ) -> tuple[list[dict | None], list[float]]:
+        """Crossed limbs (:mod:`arteq.fit.crossing`) for the full scans of a refined batch: which pairs each
+        tries, the swaps' refinement, and ``fit``'s tensors replaced where a swap is kept. Returns per scan
+        the record for :attr:`FitResult.crossing` (None: nothing tried) and its seconds."""
+        t0 = time.perf_counter()
+        n = len(ref_in)
+        tries: list[list[str]] = [[] for _ in range(n)]
+        joints = fit["joints"].detach().double().cpu().numpy()
+        for i in range(n):
+            if modes[i]["partial"]:
+                continue
+            q = fit_quality(
+                ref_in[i], fit["vertices"][i].detach().double().cpu().numpy(), self.vertex_parts,
+                self.subset, fit["betas"][i].detach().double().cpu().numpy(), probs_ref[i], self.thresholds,
+            )  # fmt: skip
+            if verdict(q["flags"]) == "not_single_body":
+                continue
+            tries[i] = pairs_to_try(joints[i], verdict(q["flags"]) == "uncertain", self.crossing)
+        if not any(tries):
+            return [None] * n, [0.0] * n
+        picked = try_swaps(self.body, ref_in, fit, self.subset, tries, self.refine_config, self.crossing)
+        for k in fit:
+            fit[k] = fit[k].detach().clone()
+        records: list[dict | None] = [None] * n
+        for i, p in enumerate(picked):
+            if not tries[i]:
+                continue
+            records[i] = {"score_cm": round(p["score"], 4), "tried_cm": {k: round(v, 4) for k, v in
+                          p["tried"].items()}, "taken": p["taken"]}  # fmt: skip
+            if p["taken"]:
+                for k in fit:
+                    fit[k][i] = p[k].to(fit[k].dtype)
+        seconds = (time.perf_counter() - t0) / max(1, sum(bool(t) for t in tries))
+        return records, [seconds if t else 0.0 for t in tries]
 
     def _scan_modes(
         self, items: list[dict[str, Any]], net_in: list[np.ndarray], ref_in: list[np.ndarray],

@@ -46,6 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--anny", action=argparse.BooleanOptionalAction, default=None,
                     help="Anny phenotype, pose and body measurements per fit (default: when the anny "
                     "package is installed and the body is an Anny body; --anny: required)")  # fmt: skip
+    ap.add_argument("--crossing", action=argparse.BooleanOptionalAction, default=True,
+                    help="full scans: refit a doubtful fit with left / right limb pairs swapped, keep a "
+                    "swap that explains the scan better (crossed arms; default: on)")  # fmt: skip
     ap.add_argument("--partial", action=argparse.BooleanOptionalAction, default=None,
                     help="scans are one camera's view (--partial) or full surfaces (--no-partial); default: "
                     "detected per scan, a depth image is partial")  # fmt: skip
@@ -87,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         fitter = Fitter(ckpt=args.ckpt, device=args.device, refine=args.refine, points=args.points,
                         refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny,
-                        strict=args.strict, partial=args.partial, view_dir=args.view_dir)  # fmt: skip
+                        strict=args.strict, partial=args.partial, view_dir=args.view_dir,
+                        crossing=args.crossing)  # fmt: skip
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"arteq-fit: {exc}", file=sys.stderr)
         return 2

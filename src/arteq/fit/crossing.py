@@ -1,0 +1,200 @@
+"""Crossed limbs: refit with a left / right pair of limb segments swapped, keep it when it explains the scan
+better.
+
+The part-local network reads left and right from the torso's frame (:mod:`arteq.models.sides`): a point's
+side is the side of the body's midplane it lies on. A limb that crosses the midplane (arms crossed
+overhead, a forearm across the chest, a handstand's arms seen upside down) is then split between the two
+sides, and the refinement, which starts from those labels, ends with the limbs uncrossed: the surface is
+covered, the vertices are wrong (16-22 cm V2V on the user-scan suite's ``reach_up`` scans).
+
+After the refinement, for a fit that the check doubts or whose two segments of a pair come close (within
+:attr:`CrossingConfig.near_m`, where a crossing happens), each pair of :data:`PAIRS` is tried swapped:
+both segments are turned about their joints to point at the other side's segment end (:func:`swap_start`,
+the children follow), and the body is refined again from there without part gating (the network's sides
+are what is in doubt). The fit itself is refined again the same way (``none``), so that every candidate
+has had the same iterations. A swap is kept when its surface score (:func:`surface_score`, symmetric
+robust Chamfer in cm) is lower than ``none``'s by :attr:`CrossingConfig.min_gain` (relative), else
+``none`` is kept when it scores lower than the fit; nothing changes for a fit that is lost altogether
+(score above :attr:`CrossingConfig.max_score_cm`: every start is far off there and the score does not
+tell them apart). Measured in experiments/fitting/crossing.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from arteq.body.skeleton import JOINT_NAMES, NUM_JOINTS, PARENTS
+
+_J = {n: i for i, n in enumerate(JOINT_NAMES)}
+#: name -> (left joint, right joint, left segment end, right segment end); the part that turns about the
+#: joint is the segment (its children follow it).
+PAIRS: dict[str, tuple[int, int, int, int]] = {
+    "upper_arms": (_J["left_shoulder"], _J["right_shoulder"], _J["left_elbow"], _J["right_elbow"]),
+    "forearms": (_J["left_elbow"], _J["right_elbow"], _J["left_wrist"], _J["right_wrist"]),
+    "thighs": (_J["left_hip"], _J["right_hip"], _J["left_knee"], _J["right_knee"]),
+    "shins": (_J["left_knee"], _J["right_knee"], _J["left_ankle"], _J["right_ankle"]),
+}
+
+
+@dataclass
+class CrossingConfig:
+    """When and how swapped limb pairs are tried (values: experiments/fitting/crossing.md)."""
+
+    #: a fit whose two segments of a pair pass within this distance (m) tries that pair
+    near_m: float = 0.15
+    #: a fit the check doubts (status uncertain) tries every pair
+    doubtful_tries_all: bool = True
+    #: refinement iterations from each swapped start (no gating)
+    iters: int = 30
+    #: keep a swap whose score is lower than the fit's by this fraction
+    min_gain: float = 0.03
+    #: no swap for a fit scoring above this (cm): every start is far off there
+    max_score_cm: float = 4.0
+
+
+def _aim(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation ``[3, 3]`` taking direction ``a`` to direction ``b``."""
+    a = a / max(np.linalg.norm(a), 1e-12)
+    b = b / max(np.linalg.norm(b), 1e-12)
+    v, c = np.cross(a, b), float(a @ b)
+    if np.linalg.norm(v) < 1e-9:
+        if c > 0:
+            return np.eye(3)
+        p = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        p /= np.linalg.norm(p)
+        return 2 * np.outer(p, p) - np.eye(3)  # a half turn about an axis normal to a
+    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + k + k @ k / (1 + c)
+
+
+def swap_start(local: np.ndarray, global_rot: np.ndarray, joints: np.ndarray, pair: str) -> np.ndarray:
+    """Local rotations ``[22, 3, 3]`` with ``pair``'s two segments each turned about its joint to point at
+    the other side's segment end (``global_rot [22, 3, 3]``, ``joints [22, 3]`` of the posed fit)."""
+    lj, rj, le, re = PAIRS[pair]
+    out = np.array(local, dtype=np.float64, copy=True)
+    for j, end, other in ((lj, le, re), (rj, re, le)):
+        turned = _aim(joints[end] - joints[j], joints[other] - joints[j]) @ global_rot[j]
+        out[j] = global_rot[PARENTS[j]].T @ turned
+    return out
+
+
+def segment_gap(joints: np.ndarray, pair: str, samples: int = 21) -> float:
+    """Closest distance (m) between ``pair``'s left and right segments (joint to segment end)."""
+    lj, rj, le, re = PAIRS[pair]
+    t = np.linspace(0.0, 1.0, samples)[:, None]
+    a = joints[lj] + t * (joints[le] - joints[lj])
+    b = joints[rj] + t * (joints[re] - joints[rj])
+    return float(np.linalg.norm(a[:, None] - b[None], axis=-1).min())
+
+
+def surface_score(
+    points: np.ndarray, vertices: np.ndarray, subset: np.ndarray, cap_m: float = 0.05, trim: float = 0.15
+) -> float:
+    """Symmetric robust Chamfer (cm): the mean capped distance of the points to the vertices, plus that of
+    the ``subset`` vertices to the points with the worst ``trim`` dropped (holes)."""
+    from scipy.spatial import cKDTree
+
+    d1 = np.minimum(cKDTree(vertices).query(points)[0], cap_m).mean()
+    d2 = np.sort(np.minimum(cKDTree(points).query(vertices[subset])[0], cap_m))
+    d2 = d2[: max(1, int(round((1 - trim) * len(d2))))].mean()
+    return float((d1 + d2) * 100)
+
+
+def pairs_to_try(joints: np.ndarray, doubtful: bool, config: CrossingConfig | None = None) -> list[str]:
+    """The pairs a fit tries: all when the check doubts it (and the config says so), else those whose
+    segments come within ``near_m``."""
+    cfg = config or CrossingConfig()
+    if doubtful and cfg.doubtful_tries_all:
+        return list(PAIRS)
+    return [p for p in PAIRS if segment_gap(joints, p) < cfg.near_m]
+
+
+def try_swaps(
+    body: torch.nn.Module,
+    points: list[np.ndarray],
+    fit: dict[str, torch.Tensor],
+    subset: np.ndarray,
+    tries: list[list[str]],
+    refine_config,
+    config: CrossingConfig | None = None,
+) -> list[dict]:
+    """Refine every swapped start of ``tries`` (one batch) and pick, per scan, the swap to keep.
+
+    Args:
+        points: per scan ``[N, 3]`` (metres, the refinement's frame).
+        fit: the refined fits, ``local_rotmats [B, 22, 3, 3]``, ``global_rotmats``, ``joints [B, 22, 3]``,
+            ``vertices [B, V, 3]``, ``betas [B, nb]``, ``transl [B, 3]``.
+        tries: per scan, the pairs to try (empty: none).
+        refine_config: the fitter's :class:`arteq.fit.refine.RefineConfig` (iterations, gating and the
+            kernel's start replaced by the crossing's).
+    Returns:
+        per scan ``{"tried": {pair or "none": score}, "score": the fit's score, "taken": the pair, "none"
+        (the fit refined again) or "" (the fit kept), and unless "" "local_rotmats", "betas", "transl",
+        "vertices", "joints", "global_rotmats" (tensors of one scan)}``.
+    """
+    from arteq.fit.refine import refine
+
+    cfg = config or CrossingConfig()
+    dtype, device = body.v_template.dtype, body.v_template.device
+    out = []
+    rows = []  # (scan, pair or "none")
+    starts = []
+    for i, pairs in enumerate(tries):
+        verts = fit["vertices"][i].detach().double().cpu().numpy()
+        score = surface_score(points[i], verts, subset)
+        out.append({"tried": {}, "score": score, "taken": ""})
+        if not pairs or score > cfg.max_score_cm:
+            continue
+        local = fit["local_rotmats"][i].detach().double().cpu().numpy()
+        grot = fit["global_rotmats"][i].detach().double().cpu().numpy()
+        joints = fit["joints"][i].detach().double().cpu().numpy()
+        rows.append((i, "none"))
+        starts.append(local)
+        for pair in pairs:
+            rows.append((i, pair))
+            starts.append(swap_start(local, grot, joints, pair))
+    if not rows:
+        return out
+    idx = [i for i, _ in rows]
+    rc = dataclasses.replace(refine_config, iters=cfg.iters, gate_frac=0.0, top_parts=NUM_JOINTS)
+    rc.sigma_start = rc.sigma_end  # from a refined fit: the final kernel width from the start
+    pts = torch.as_tensor(np.stack([points[i] for i in idx]), dtype=dtype, device=device)
+    init = {
+        "local_rotmats": torch.as_tensor(np.stack(starts), dtype=dtype, device=device),
+        "betas": fit["betas"][idx].detach().to(device=device, dtype=dtype),
+        "transl": fit["transl"][idx].detach().to(device=device, dtype=dtype),
+    }
+    probs = torch.ones(len(rows), pts.shape[1], NUM_JOINTS, dtype=dtype, device=device)  # no part gating
+    res = refine(body, pts, probs, init, rc)
+    row_of: dict[tuple[int, str], int] = {}
+    for r, (i, pair) in enumerate(rows):
+        out[i]["tried"][pair] = surface_score(
+            points[i], res.vertices[r].detach().double().cpu().numpy(), subset
+        )
+        row_of[(i, pair)] = r
+    for i, rec in enumerate(out):
+        if "none" not in rec["tried"]:
+            continue
+        base = rec["tried"]["none"]
+        swaps = {p: v for p, v in rec["tried"].items() if p != "none" and v < (1 - cfg.min_gain) * base}
+        if swaps:
+            pick = min(swaps, key=swaps.get)
+        elif base < rec["score"]:
+            pick = "none"
+        else:
+            continue
+        r = row_of[(i, pick)]
+        rec["taken"] = pick
+        rec.update(
+            local_rotmats=res.local_rotmats[r],
+            betas=res.betas[r],
+            transl=res.transl[r],
+            vertices=res.vertices[r],
+            joints=res.joints[r],
+            global_rotmats=res.global_rotmats[r],
+        )
+    return out

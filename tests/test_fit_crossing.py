@@ -1,0 +1,108 @@
+"""Crossed limbs (arteq.fit.crossing): the swapped start, and the swap kept only when it explains the scan."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from arteq.fit.crossing import PAIRS, CrossingConfig, pairs_to_try, segment_gap, surface_score, swap_start
+from arteq.fit.refine import RefineConfig, body_tables
+
+
+@pytest.fixture(scope="module")
+def body(anny22):
+    return anny22
+
+
+def _posed(body, pose, betas, transl):
+    with torch.no_grad():
+        o = body(
+            betas=torch.as_tensor(betas, dtype=torch.float32)[None],
+            pose=torch.as_tensor(pose, dtype=torch.float32)[None],
+            transl=torch.as_tensor(transl, dtype=torch.float32)[None],
+        )
+    return {k: getattr(o, k)[0].double().numpy() for k in ("vertices", "joints", "global_rotmats")}
+
+
+@pytest.fixture(scope="module")
+def scene(body):
+    from arteq.fit.demo import synthetic_scan
+
+    s = synthetic_scan(body, "test_id", 2, 5000, offset=0.0, rotate=True)
+    return s, _posed(body, s["pose"], s["betas"], s["transl"])
+
+
+@pytest.mark.parametrize("pair", list(PAIRS))
+def test_swap_start_points_each_segment_at_the_other_end(body, scene, pair):
+    """Each segment of the pair turns about its own joint toward the other side's segment end (its children
+    follow); every other part keeps its global rotation."""
+    s, fit = scene
+    new = _posed(
+        body, swap_start(s["pose"], fit["global_rotmats"], fit["joints"], pair), s["betas"], s["transl"]
+    )
+    lj, rj, le, re = PAIRS[pair]
+    for j, end, other in ((lj, le, re), (rj, re, le)):
+        np.testing.assert_allclose(new["joints"][j], fit["joints"][j], atol=1e-5)  # the joint stays
+        got = new["joints"][end] - new["joints"][j]
+        want = fit["joints"][other] - fit["joints"][j]
+        cos = got @ want / np.linalg.norm(got) / np.linalg.norm(want)
+        assert cos > 1 - 1e-6, (pair, cos)
+    moved = {lj, rj} | {k for k in range(22) if _descends(k, (lj, rj))}
+    same = [k for k in range(22) if k not in moved]
+    np.testing.assert_allclose(new["global_rotmats"][same], fit["global_rotmats"][same], atol=1e-5)
+
+
+def _descends(k, roots):
+    from arteq.body.skeleton import PARENTS
+
+    while k >= 0:
+        if k in roots:
+            return True
+        k = PARENTS[k]
+    return False
+
+
+def test_pairs_to_try(scene):
+    s, fit = scene
+    gaps = {p: segment_gap(fit["joints"], p) for p in PAIRS}
+    assert all(g > 0.15 for g in gaps.values()), gaps  # an everyday pose: no two segments close
+    assert pairs_to_try(fit["joints"], doubtful=False) == []
+    assert pairs_to_try(fit["joints"], doubtful=True) == list(PAIRS)
+    assert pairs_to_try(fit["joints"], doubtful=False, config=CrossingConfig(near_m=10.0)) == list(PAIRS)
+
+
+def test_a_crossing_is_found_and_a_good_fit_left_alone(body, scene):
+    """A scan with crossed forearms fitted uncrossed: trying the swap recovers it (V2V down to the
+    refinement's level); the scan of the uncrossed pose, fitted right, keeps its pose."""
+    from arteq.fit.crossing import try_swaps
+    from arteq.geometry.sampling import sample_surface
+
+    s, fit = scene
+    crossed_pose = swap_start(s["pose"], fit["global_rotmats"], fit["joints"], "forearms")
+    crossed = _posed(body, crossed_pose, s["betas"], s["transl"])
+    g = torch.Generator().manual_seed(0)
+    subset = body_tables(body, 2000).m2s_subset.numpy()
+    ref = RefineConfig()
+    fit_t = {
+        "local_rotmats": torch.as_tensor(np.stack([s["pose"]] * 2), dtype=torch.float32),
+        "betas": torch.as_tensor(np.stack([s["betas"]] * 2), dtype=torch.float32),
+        "transl": torch.as_tensor(np.stack([s["transl"]] * 2), dtype=torch.float32),
+        **{k: torch.as_tensor(np.stack([fit[k]] * 2)) for k in ("vertices", "joints", "global_rotmats")},
+    }
+    clouds = []
+    for verts in (crossed["vertices"], fit["vertices"]):
+        pts, _, _ = sample_surface(
+            torch.as_tensor(verts, dtype=torch.float32), body.faces, 5000, g, noise_std=0.003
+        )
+        clouds.append(pts.double().numpy())
+    before = np.linalg.norm(fit["vertices"] - crossed["vertices"], axis=1).mean() * 100
+    out = try_swaps(body, clouds, fit_t, subset, [["forearms"], ["forearms"]], ref)
+    assert before > 3.0, before
+    assert out[0]["taken"] == "forearms", out[0]
+    after = np.linalg.norm(out[0]["vertices"].double().numpy() - crossed["vertices"], axis=1).mean() * 100
+    assert after < 1.0, (before, after)
+    assert out[0]["tried"]["forearms"] < min(out[0]["score"], out[0]["tried"]["none"])
+    # the right fit: the swap explains the scan worse than the fit refined again ("none")
+    assert out[1]["taken"] in ("", "none") and out[1]["tried"]["forearms"] > out[1]["tried"]["none"], out[1]
+    assert surface_score(clouds[1], fit["vertices"], subset) == pytest.approx(out[1]["score"])
