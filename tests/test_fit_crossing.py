@@ -106,3 +106,25 @@ def test_a_crossing_is_found_and_a_good_fit_left_alone(body, scene):
     # the right fit: the swap explains the scan worse than the fit refined again ("none")
     assert out[1]["taken"] in ("", "none") and out[1]["tried"]["forearms"] > out[1]["tried"]["none"], out[1]
     assert surface_score(clouds[1], fit["vertices"], subset) == pytest.approx(out[1]["score"])
+
+
+def test_a_refit_after_a_doubt_stays_uncertain():
+    """The flag the fitter sets on a replaced fit that passes the check after the first one was doubted:
+    uncertain (written), never refused, and its reason names the first doubt."""
+    from arteq.fit.quality import REFUSE_FLAGS, describe_flags, verdict
+
+    q = {
+        "inlier_frac": 0.95,
+        "coverage": 0.96,
+        "rmse_in_cm": 1.0,
+        "parts_covered": 20,
+        "max_abs_beta": 1.0,
+        "extent_m": 1.6,
+        "flags": ["refitted"],
+        "first_doubt": "the scan covers only 91% of the fitted body",
+    }
+    assert verdict(q["flags"]) == "uncertain" and "refitted" not in REFUSE_FLAGS
+    assert (
+        describe_flags(q)
+        == "refitted after the first fit was doubted (the scan covers only 91% of the fitted body)"
+    )

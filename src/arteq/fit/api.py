@@ -126,7 +126,7 @@ class FitResult:
 
     def arrays(self) -> dict[str, Any]:
         """The ``.npz`` content (see docs/fitting.md)."""
-        q = {f"quality_{k}": v for k, v in self.quality.items() if k != "flags"}
+        q = {f"quality_{k}": v for k, v in self.quality.items() if k != "flags" and not isinstance(v, str)}
         c = self.clean.counts if self.clean is not None else {}
         planes = self.clean.planes if self.clean is not None else []
         clutter = {
@@ -581,6 +581,11 @@ class Fitter:
                 subset = subset[self._visible(verts[i], mode)[subset]]
             q = fit_quality(ref_in[i], verts[i], self.vertex_parts, subset, betas[i], probs_ref[i],
                             self.thresholds)  # fmt: skip
+            if crossing[i] and crossing[i]["taken"] and crossing[i]["first_doubt"] and not q["flags"]:
+                # a refit the check no longer doubts stays flagged: surface checks pass refits of wrong
+                # vertices (experiments/fitting/crossing.md)
+                q["flags"].append("refitted")
+                q["first_doubt"] = crossing[i]["first_doubt"]
             cleaned = it.get("clean")
             if cleaned is not None and "second_body" in cleaned.flags:
                 q["flags"].append("second_body")
@@ -685,6 +690,7 @@ class Fitter:
         t0 = time.perf_counter()
         n = len(ref_in)
         tries: list[list[str]] = [[] for _ in range(n)]
+        doubtful = [""] * n
         joints = fit["joints"].detach().double().cpu().numpy()
         for i in range(n):
             if modes[i]["partial"]:
@@ -695,7 +701,8 @@ class Fitter:
             )  # fmt: skip
             if verdict(q["flags"]) == "not_single_body":
                 continue
-            tries[i] = pairs_to_try(joints[i], verdict(q["flags"]) == "uncertain", self.crossing)
+            doubtful[i] = describe_flags(q) if verdict(q["flags"]) == "uncertain" else ""
+            tries[i] = pairs_to_try(joints[i], bool(doubtful[i]), self.crossing)
         if not any(tries):
             return [None] * n, [0.0] * n
         picked = try_swaps(self.body, ref_in, fit, self.subset, tries, self.refine_config, self.crossing)
@@ -706,7 +713,7 @@ class Fitter:
             if not tries[i]:
                 continue
             records[i] = {"score_cm": round(p["score"], 4), "tried_cm": {k: round(v, 4) for k, v in
-                          p["tried"].items()}, "taken": p["taken"]}  # fmt: skip
+                          p["tried"].items()}, "taken": p["taken"], "first_doubt": doubtful[i]}  # fmt: skip
             if p["taken"]:
                 for k in fit:
                     fit[k][i] = p[k].to(fit[k].dtype)

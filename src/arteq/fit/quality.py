@@ -31,7 +31,9 @@ Values (``fit_quality``) and the reason codes they set (thresholds: :class:`Qual
   highest), spheres 1.0.
 
 Clutter removal (:mod:`arteq.fit.clean`) adds the refusing flag ``second_body`` when the scan holds a
-second body-sized cluster apart from the fitted one (two people).
+second body-sized cluster apart from the fitted one (two people). The crossed-limb step
+(:mod:`arteq.fit.crossing`) adds ``refitted`` (uncertain) to a fit it replaced after the check had doubted
+the first one, when the replacement passes: the surface values pass refits whose vertices are still wrong.
 """
 
 from __future__ import annotations
@@ -190,6 +192,7 @@ def describe_flags(q: dict, flags: list[str] | None = None) -> str:
         "missing_parts": f"points on only {q['parts_covered']} of 22 body parts",
         "implausible_shape": f"implausible shape (|beta| {q['max_abs_beta']:.1f})",
         "wrong_size": f"size {q['extent_m']:.2f} m",
+        "refitted": f"refitted after the first fit was doubted ({q.get('first_doubt', '')})",
         "sphere": (
             f"{q.get('sphere_frac', 0.0):.0%} of the points lie on a sphere of radius "
             f"{q.get('sphere_radius_m', 0.0):.2f} m"
