@@ -121,6 +121,7 @@ def try_swaps(
     tries: list[list[str]],
     refine_config,
     config: CrossingConfig | None = None,
+    keep_all: bool = False,
 ) -> list[dict]:
     """Refine every swapped start of ``tries`` (one batch) and pick, per scan, the swap to keep.
 
@@ -134,7 +135,8 @@ def try_swaps(
     Returns:
         per scan ``{"tried": {pair or "none": score}, "score": the fit's score, "taken": the pair, "none"
         (the fit refined again) or "" (the fit kept), and unless "" "local_rotmats", "betas", "transl",
-        "vertices", "joints", "global_rotmats" (tensors of one scan)}``.
+        "vertices", "joints", "global_rotmats" (tensors of one scan)}``; with ``keep_all`` also
+        ``"all_vertices": {pair or "none": [V, 3]}`` of every start tried (for studies).
     """
     from arteq.fit.refine import refine
 
@@ -176,6 +178,8 @@ def try_swaps(
             points[i], res.vertices[r].detach().double().cpu().numpy(), subset
         )
         row_of[(i, pair)] = r
+        if keep_all:
+            out[i].setdefault("all_vertices", {})[pair] = res.vertices[r].detach()
     for i, rec in enumerate(out):
         if "none" not in rec["tried"]:
             continue
