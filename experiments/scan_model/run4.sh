@@ -3,6 +3,8 @@
 # experiments/pretrained/scan_local_resume.ckpt at step 7000) trained 6 more epochs (3000 steps) of the same
 # data and mix at lr 3e-4 (cosine to 5 %), weights only (a fresh optimizer). Asks whether the in-distribution
 # precision that separates anny_scan from anny22 (7.2 against 4.5 cm V2V, network alone) still moves.
+# seed=1 changes the run's own random state, not its clouds: data.seed stays 0, so the training stream is
+# run3's first 6 epochs again and the validation set is run3's (comparable).
 # Resumable like run.sh: run it again and it continues from outputs/scan_model/run4's newest checkpoint.
 #   nohup bash experiments/scan_model/run4.sh > outputs/scan_model/run4.log 2>&1 &
 set -euo pipefail
