@@ -224,9 +224,14 @@ def surface_distance_cm(fitted: np.ndarray, truth: np.ndarray) -> float:
     return float((a + b) / 2 * 100)
 
 
-def run(model: str | None, usable_cm: float, seed: int = 0, crossing: bool = True) -> list[dict]:
+def run(
+    model: str | None, usable_cm: float, seed: int = 0, crossing: bool = True, gain: float | None = None
+) -> list[dict]:
     from arteq.fit.api import Fitter
+    from arteq.fit.crossing import CrossingConfig
 
+    if crossing and gain is not None:
+        crossing = CrossingConfig(min_gain=gain)
     fitter = Fitter(ckpt=model, device="cpu", anny=False, crossing=crossing)
     records = []
     for it in labelled_set(seed):
@@ -287,13 +292,15 @@ def main() -> None:
     ap.add_argument("--model", default="anny22", help="checkpoint path or shipped name (default: anny22)")
     ap.add_argument("--no-crossing", action="store_true",
                     help="without the crossed-limb step (arteq.fit.crossing; tables before 2026-12-03)")
+    ap.add_argument("--crossing-gain", type=float, default=None,
+                    help="the crossed-limb step's margin (CrossingConfig.min_gain; default: its default)")
     ap.add_argument("--usable-cm", type=float, default=3.0, help="V2V (cm) up to which a fit is usable")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="write every scan's record here (JSON)")
     a = ap.parse_args()
     torch.set_num_threads(1)
     t0 = time.perf_counter()
-    records, ckpt = run(a.model, a.usable_cm, a.seed, crossing=not a.no_crossing)
+    records, ckpt = run(a.model, a.usable_cm, a.seed, crossing=not a.no_crossing, gain=a.crossing_gain)
     print(f"\ncheckpoint {ckpt}; {len(records)} scans in {time.perf_counter() - t0:.0f} s\n")
     print(table(records))
     if a.out:
