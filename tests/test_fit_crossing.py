@@ -128,3 +128,69 @@ def test_a_refit_after_a_doubt_stays_uncertain():
         describe_flags(q)
         == "refitted after the first fit was doubted (the scan covers only 91% of the fitted body)"
     )
+
+
+def test_the_fitter_uncrosses_a_crossed_scan_and_says_so(body, scene, tmp_path, tiny_net):
+    """Through ``Fitter`` and ``fit_files``: a scan of crossed forearms, and a "network" that reads it the way
+    the torso-frame sides do (the uncrossed pose, points labelled by the uncrossed mesh), is fitted crossed
+    with the step and stays uncrossed without it; the npz, json and summary say which pair was swapped."""
+    import json
+
+    from scipy.spatial import cKDTree
+
+    from arteq.fit.api import Fitter
+    from arteq.fit.files import fit_files
+    from fit_helpers import write_tiny_checkpoint
+
+    s, fit = scene
+    crossed = _posed(
+        body, swap_start(s["pose"], fit["global_rotmats"], fit["joints"], "forearms"), s["betas"], s["transl"]
+    )
+    g = torch.Generator().manual_seed(1)
+    from arteq.geometry.sampling import sample_surface
+
+    pts, _, _ = sample_surface(
+        torch.as_tensor(crossed["vertices"], dtype=torch.float32), body.faces, 5000, g, noise_std=0.003
+    )
+    pts = pts.double().numpy()
+    ckpt = write_tiny_checkpoint(tmp_path / "tiny.ckpt", tiny_net)
+
+    class Uncrossed(Fitter):
+        def prepare(self, points, units="m", name="points"):
+            item = super().prepare(points, units, name)
+            self._centre = item["center"]
+            return item
+
+        @torch.no_grad()
+        def _network(self, clouds):
+            c = self._centre
+            lab = self.vertex_parts[cKDTree(fit["vertices"] - c).query(clouds[0])[1]]
+            return {
+                "part_probs": torch.as_tensor(np.eye(22)[lab] * 0.9 + 0.1 / 22, dtype=torch.float32)[None],
+                "local_rotmats": torch.as_tensor(s["pose"], dtype=torch.float32)[None],
+                "betas": torch.as_tensor(s["betas"], dtype=torch.float32)[None],
+                "transl": torch.as_tensor(s["transl"] - c, dtype=torch.float32)[None],
+            }
+
+    v2v = {}
+    for on in (True, False):
+        # every pair tried (the trigger is pairs_to_try's, tested above): this fit passes the check
+        f = Uncrossed(
+            ckpt=ckpt, device="cpu", anny=False, crossing=CrossingConfig(near_m=10.0) if on else False
+        )
+        out = tmp_path / f"fits_{on}"
+        path = tmp_path / "crossed.npy"
+        np.save(path, pts)
+        summary = fit_files([path], out, fitter=f, preview=False, log=lambda m: None)
+        z = np.load(out / "crossed.npz")
+        v2v[on] = float(np.linalg.norm(z["vertices"] - crossed["vertices"], axis=1).mean() * 100)
+        row = summary.rows[0]
+        js = json.loads((out / "crossed.json").read_text())
+        if on:
+            assert str(z["crossing_taken"]) == "forearms" and row["crossing"] == "forearms", row
+            assert js["crossing"]["taken"] == "forearms" and "none" in js["crossing"]["tried_cm"], js[
+                "crossing"
+            ]
+        else:
+            assert str(z["crossing_taken"]) == "" and row["crossing"] == "" and js["crossing"] is None
+    assert v2v[True] < 1.5 < 3.0 < v2v[False], v2v
