@@ -6,6 +6,18 @@ from pathlib import Path
 
 import torch
 
+from arteq.fit.api import Fitter
+
+
+class CentreKeepingFitter(Fitter):
+    """A ``Fitter`` that remembers the last prepared scan's centre (``self._centre``), for test subclasses
+    whose ``_network`` stands in for the network with a known answer in the scan's frame."""
+
+    def prepare(self, points, units="m", name="points"):
+        item = super().prepare(points, units, name)
+        self._centre = item["center"]
+        return item
+
 
 def write_tiny_checkpoint(path: Path, net: dict) -> Path:
     """An untrained, weights-only checkpoint of ``net`` (the ``tiny_net`` fixture: ArtEqNet keyword

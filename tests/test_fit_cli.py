@@ -24,7 +24,7 @@ from arteq.fit.api import Fitter
 from arteq.fit.cli import main as cli_main
 from arteq.fit.demo import synthetic_scan
 from arteq.fit.files import fit_files
-from fit_helpers import write_tiny_checkpoint
+from fit_helpers import CentreKeepingFitter, write_tiny_checkpoint
 
 
 @pytest.fixture(scope="module")
@@ -37,15 +37,10 @@ def tiny_ckpt(tmp_path_factory, tiny_net):
     return write_tiny_checkpoint(tmp_path_factory.mktemp("ckpt") / "tiny.ckpt", tiny_net)
 
 
-class OracleFitter(Fitter):
+class OracleFitter(CentreKeepingFitter):
     """The real pipeline with the network replaced by the perturbed ground truth of ``truth``."""
 
     truth: dict | None = None
-
-    def prepare(self, points, units="m", name="points"):
-        item = super().prepare(points, units, name)
-        self._centre = item["center"]
-        return item
 
     @torch.no_grad()
     def _network(self, clouds):

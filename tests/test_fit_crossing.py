@@ -138,9 +138,8 @@ def test_the_fitter_uncrosses_a_crossed_scan_and_says_so(body, scene, tmp_path, 
 
     from scipy.spatial import cKDTree
 
-    from arteq.fit.api import Fitter
     from arteq.fit.files import fit_files
-    from fit_helpers import write_tiny_checkpoint
+    from fit_helpers import CentreKeepingFitter, write_tiny_checkpoint
 
     s, fit = scene
     crossed = _posed(
@@ -155,12 +154,7 @@ def test_the_fitter_uncrosses_a_crossed_scan_and_says_so(body, scene, tmp_path, 
     pts = pts.double().numpy()
     ckpt = write_tiny_checkpoint(tmp_path / "tiny.ckpt", tiny_net)
 
-    class Uncrossed(Fitter):
-        def prepare(self, points, units="m", name="points"):
-            item = super().prepare(points, units, name)
-            self._centre = item["center"]
-            return item
-
+    class Uncrossed(CentreKeepingFitter):
         @torch.no_grad()
         def _network(self, clouds):
             c = self._centre
