@@ -104,7 +104,7 @@ class StoredShapePrior:
         self._fingerprint = f"{name}(n={b.shape[0]}, k={k}, jitter={self.jitter:g}, bands={list(bands)}, {h})"
 
     def sample(self, num_betas: int, generator: torch.Generator) -> torch.Tensor:
-        """One draw: betas ``[num_betas]`` float64 (the leading block of the stored components)."""
+        """One draw: betas ``[num_betas]`` float64 (the first ``num_betas`` of the stored components)."""
         return self.draw(num_betas, generator)[0]
 
     def draw(
@@ -119,7 +119,7 @@ class StoredShapePrior:
             )
         i = int(torch.randint(len(self.betas), (1,), generator=generator))
         z = torch.randn(num_betas, generator=generator, dtype=torch.float64)
-        # the Cholesky factor of a covariance's leading block is the leading block of its factor
+        # the Cholesky factor of a covariance's top-left k x k submatrix is the top-left k x k of its factor
         chol = self.chol[self.band[i], :num_betas, :num_betas]
         return self.betas[i, :num_betas] + self.jitter * (chol @ z), self.meta(i)
 
