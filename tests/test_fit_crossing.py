@@ -188,3 +188,20 @@ def test_the_fitter_uncrosses_a_crossed_scan_and_says_so(body, scene, tmp_path, 
         else:
             assert str(z["crossing_taken"]) == "" and row["crossing"] == "" and js["crossing"] is None
     assert v2v[True] < 1.5 < 3.0 < v2v[False], v2v
+
+
+@pytest.mark.parametrize("b", [(0.3, -0.2, 0.9), (1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (-0.6, 0.8, 0.0)])
+def test_rotation_between_takes_a_to_b(b):
+    """The one helper for "the smallest rotation from a to b" (swap_start, the Anny rig), opposite directions
+    included."""
+    from arteq.geometry.rotations import rotation_between
+
+    a = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+    b = torch.tensor(b, dtype=torch.float64)
+    r = rotation_between(a, b)
+    torch.testing.assert_close(r @ a, b / b.norm())
+    torch.testing.assert_close(r @ r.T, torch.eye(3, dtype=torch.float64))
+    assert torch.linalg.det(r) > 0.999
+    axis = torch.linalg.cross(a, b)
+    if axis.norm() > 1e-6:  # the smallest one: it keeps the common normal fixed
+        torch.testing.assert_close(r @ axis, axis)

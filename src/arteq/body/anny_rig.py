@@ -111,13 +111,9 @@ def fold_table(bone_labels: list[str], bone_parents: list[int]) -> list[int]:
 
 def _align(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Minimal rotation ``[3,3]`` taking direction ``a`` to direction ``b``."""
-    import roma
+    from arteq.geometry.rotations import rotation_between
 
-    a = a / a.norm()
-    b = b / b.norm()
-    axis = torch.linalg.cross(a, b)
-    angle = torch.atan2(axis.norm(), (a * b).sum())
-    return roma.rotvec_to_rotmat(axis / axis.norm().clamp_min(1e-12) * angle)
+    return rotation_between(a, b)
 
 
 def load_anny():

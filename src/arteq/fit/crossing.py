@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from arteq.body.skeleton import JOINT_NAMES, NUM_JOINTS, PARENTS
+from arteq.geometry.rotations import rotation_between
 
 _J = {n: i for i, n in enumerate(JOINT_NAMES)}
 #: name -> (left joint, right joint, left segment end, right segment end); the part that turns about the
@@ -56,28 +57,16 @@ class CrossingConfig:
     max_score_cm: float = 4.0
 
 
-def _aim(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest rotation ``[3, 3]`` taking direction ``a`` to direction ``b``."""
-    a = a / max(np.linalg.norm(a), 1e-12)
-    b = b / max(np.linalg.norm(b), 1e-12)
-    v, c = np.cross(a, b), float(a @ b)
-    if np.linalg.norm(v) < 1e-9:
-        if c > 0:
-            return np.eye(3)
-        p = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-        p /= np.linalg.norm(p)
-        return 2 * np.outer(p, p) - np.eye(3)  # a half turn about an axis normal to a
-    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + k + k @ k / (1 + c)
-
-
 def swap_start(local: np.ndarray, global_rot: np.ndarray, joints: np.ndarray, pair: str) -> np.ndarray:
     """Local rotations ``[22, 3, 3]`` with ``pair``'s two segments each turned about its joint to point at
     the other side's segment end (``global_rot [22, 3, 3]``, ``joints [22, 3]`` of the posed fit)."""
     lj, rj, le, re = PAIRS[pair]
     out = np.array(local, dtype=np.float64, copy=True)
     for j, end, other in ((lj, le, re), (rj, re, le)):
-        turned = _aim(joints[end] - joints[j], joints[other] - joints[j]) @ global_rot[j]
+        aim = rotation_between(
+            torch.as_tensor(joints[end] - joints[j]), torch.as_tensor(joints[other] - joints[j])
+        )
+        turned = aim.numpy() @ global_rot[j]
         out[j] = global_rot[PARENTS[j]].T @ turned
     return out
 

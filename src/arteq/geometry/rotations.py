@@ -1,11 +1,12 @@
-"""Rotation helpers: Euler angles, Haar-uniform random rotations (float64 by default), geodesic angles."""
+"""Rotation helpers: Euler angles, Haar-uniform random rotations (float64 by default), geodesic angles, the
+smallest rotation between two directions."""
 
 from __future__ import annotations
 
 import roma
 import torch
 
-__all__ = ["euler_to_rotmat", "geodesic_deg", "random_rotmat"]
+__all__ = ["euler_to_rotmat", "geodesic_deg", "random_rotmat", "rotation_between"]
 
 
 def euler_to_rotmat(angles_deg: torch.Tensor) -> torch.Tensor:
@@ -32,3 +33,17 @@ def geodesic_deg(r1: torch.Tensor, r2: torch.Tensor) -> torch.Tensor:
     """Angle (degrees) of ``r1^T r2`` for ``[..., 3, 3]`` rotations."""
     cos = ((r1.transpose(-1, -2) @ r2).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
     return torch.rad2deg(torch.acos(cos.clamp(-1.0, 1.0)))
+
+
+def rotation_between(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """The smallest rotation ``[3, 3]`` taking direction ``a [3]`` to direction ``b [3]`` (opposite
+    directions: a half turn about an axis normal to ``a``)."""
+    a = a / a.norm()
+    b = b / b.norm()
+    axis = torch.linalg.cross(a, b)
+    angle = torch.atan2(axis.norm(), (a * b).sum())
+    if axis.norm() < 1e-9 and (a * b).sum() < 0:
+        helper = torch.zeros_like(a)
+        helper[int(torch.argmin(a.abs()))] = 1.0
+        axis = torch.linalg.cross(a, helper)
+    return roma.rotvec_to_rotmat(axis / axis.norm().clamp_min(1e-12) * angle)
