@@ -555,10 +555,11 @@ class Fitter:
         t_ref = time.perf_counter() - t1
         crossing: list[dict | None] = [None] * len(items)
         t_cross = [0.0] * len(items)
+        checked: list[dict | None] = [None] * len(items)  # the check's values where the fit stays as checked
         if self.refine and self.crossing is not None:
             fit = {"local_rotmats": local, "betas": betas, "transl": transl, "vertices": verts,
                    "joints": joints, "global_rotmats": grot}  # fmt: skip
-            crossing, t_cross = self._crossings(ref_in, probs_ref, modes, fit)
+            crossing, t_cross, checked = self._crossings(ref_in, probs_ref, modes, fit)
             local, betas, transl = fit["local_rotmats"], fit["betas"], fit["transl"]
             verts, joints, grot = fit["vertices"], fit["joints"], fit["global_rotmats"]
         import roma
@@ -579,8 +580,10 @@ class Fitter:
             subset = self.subset
             if mode["partial"]:  # coverage of what the camera could see
                 subset = subset[self._visible(verts[i], mode)[subset]]
-            q = fit_quality(ref_in[i], verts[i], self.vertex_parts, subset, betas[i], probs_ref[i],
-                            self.thresholds)  # fmt: skip
+            q = checked[i]
+            if q is None:
+                q = fit_quality(ref_in[i], verts[i], self.vertex_parts, subset, betas[i], probs_ref[i],
+                                self.thresholds)  # fmt: skip
             if crossing[i] and crossing[i]["taken"] and crossing[i]["first_doubt"] and not q["flags"]:
                 # a refit the check no longer doubts stays flagged: surface checks pass refits of wrong
                 # vertices (experiments/fitting/crossing.md)
@@ -683,14 +686,16 @@ class Fitter:
 
     def _crossings(
         self, ref_in: list[np.ndarray], probs_ref: np.ndarray, modes: list[dict[str, Any]], fit: dict
-    ) -> tuple[list[dict | None], list[float]]:
+    ) -> tuple[list[dict | None], list[float], list[dict | None]]:
         """Crossed limbs (:mod:`arteq.fit.crossing`) for the full scans of a refined batch: which pairs each
         tries, the swaps' refinement, and ``fit``'s tensors replaced where a swap is kept. Returns per scan
-        the record for :attr:`FitResult.crossing` (None: nothing tried) and its seconds."""
+        the record for :attr:`FitResult.crossing` (None: nothing tried), its seconds, and the check's values
+        of the fit where it was not replaced (None elsewhere: checked again)."""
         t0 = time.perf_counter()
         n = len(ref_in)
         tries: list[list[str]] = [[] for _ in range(n)]
         doubtful = [""] * n
+        checked: list[dict | None] = [None] * n
         joints = fit["joints"].detach().double().cpu().numpy()
         for i in range(n):
             if modes[i]["partial"]:
@@ -699,12 +704,13 @@ class Fitter:
                 ref_in[i], fit["vertices"][i].detach().double().cpu().numpy(), self.vertex_parts,
                 self.subset, fit["betas"][i].detach().double().cpu().numpy(), probs_ref[i], self.thresholds,
             )  # fmt: skip
+            checked[i] = q
             if verdict(q["flags"]) == "not_single_body":
                 continue
             doubtful[i] = describe_flags(q) if verdict(q["flags"]) == "uncertain" else ""
             tries[i] = pairs_to_try(joints[i], bool(doubtful[i]), self.crossing)
         if not any(tries):
-            return [None] * n, [0.0] * n
+            return [None] * n, [0.0] * n, checked
         picked = try_swaps(self.body, ref_in, fit, self.subset, tries, self.refine_config, self.crossing)
         for k in fit:
             fit[k] = fit[k].detach().clone()
@@ -715,10 +721,11 @@ class Fitter:
             records[i] = {"score_cm": round(p["score"], 4), "tried_cm": {k: round(v, 4) for k, v in
                           p["tried"].items()}, "taken": p["taken"], "first_doubt": doubtful[i]}  # fmt: skip
             if p["taken"]:
+                checked[i] = None
                 for k in fit:
                     fit[k][i] = p[k].to(fit[k].dtype)
         seconds = (time.perf_counter() - t0) / max(1, sum(bool(t) for t in tries))
-        return records, [seconds if t else 0.0 for t in tries]
+        return records, [seconds if t else 0.0 for t in tries], checked
 
     def _scan_modes(
         self, items: list[dict[str, Any]], net_in: list[np.ndarray], ref_in: list[np.ndarray],
