@@ -488,3 +488,19 @@ def test_shipped_model_end_to_end(body, tmp_path):
     v2v_cm = np.linalg.norm(z["vertices"] / 1000.0 - (s["vertices"] @ z_up.T + off), axis=1).mean() * 100
     print(f"shipped model end to end: V2V {v2v_cm:.2f} cm")
     assert v2v_cm < 4.0, v2v_cm
+
+
+def test_refinement_settings_from_the_command_line(tiny_ckpt, body, tmp_path, capsys):
+    """``--set KEY=VALUE`` reaches the refinement; a bad key or joint name: a clear error, no output."""
+    s = synthetic_scan(body, "test_id", 1, 1000, offset=1.0)
+    path = write_cloud(tmp_path / "scan.ply", s["points"])
+    base = [str(path), "--ckpt", str(tiny_ckpt), "--no-check", "--points", "800", "--iters", "3",
+            "--device", "cpu", "--no-preview"]  # fmt: skip
+    assert cli_main([*base, "--out", str(tmp_path / "bad"), "--set", "twist_at"]) == 2
+    assert "expected KEY=VALUE" in capsys.readouterr().err
+    assert cli_main([*base, "--out", str(tmp_path / "bad"), "--set", "twist_joints=left_hand"]) == 2
+    assert "'left_hand' is not a non-root joint" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+    out = tmp_path / "fits"
+    assert cli_main([*base, "--out", str(out), "--set", "twist_at=-1", "--set", "swing_at=0.5"]) == 0
+    assert np.isfinite(np.load(out / "scan.npz")["vertices"]).all()

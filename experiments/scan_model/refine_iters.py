@@ -14,6 +14,7 @@ the median refinement seconds (one thread; not comparable across rows when other
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -21,8 +22,6 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fitting"))
-
-INT_KEYS = ("iters", "reassoc_every", "m2s_vertices", "top_parts")
 
 
 def main() -> None:
@@ -36,8 +35,7 @@ def main() -> None:
     items = [it for it in labelled_set(0) if it["group"] in groups]
     ckpt = sys.argv[1]
     for arm in sys.argv[2:]:
-        kw = dict(kv.split("=") for kv in arm.split(","))
-        cfg = RefineConfig(**{k: (int(v) if k in INT_KEYS else float(v)) for k, v in kw.items()})
+        cfg = RefineConfig.from_strings(re.split(r",(?=\w+=)", arm))  # a comma before KEY= separates
         f = Fitter(ckpt=ckpt, device="cpu", check=False, anny=False, refine_config=cfg, crossing=False)
         v, ts = [], []
         for it in items:

@@ -35,6 +35,14 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--device", default="auto", help="cpu, cuda or auto (default)")
     ap.add_argument("--batch-size", type=int, default=4, help="scans fitted together (4)")
     ap.add_argument("--iters", type=int, default=None, help="refinement iterations (default 40)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="refine_set",
+        help="a refinement setting (arteq.fit.refine.RefineConfig), e.g. --set swing_at=-1; repeatable",
+    )
     ap.add_argument("--preview", action=argparse.BooleanOptionalAction, default=True, help="write <name>.png")
     ap.add_argument("--overwrite", action="store_true", help="replace existing outputs (else skip them)")
     ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
@@ -84,10 +92,10 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    cfg = RefineConfig()
-    if args.iters is not None:
-        cfg.iters = args.iters
     try:
+        cfg = RefineConfig.from_strings(args.refine_set)
+        if args.iters is not None:
+            cfg.iters = args.iters
         fitter = Fitter(ckpt=args.ckpt, device=args.device, refine=args.refine, points=args.points,
                         refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny,
                         strict=args.strict, partial=args.partial, view_dir=args.view_dir,

@@ -151,8 +151,11 @@ def try_swaps(
     if not rows:
         return out
     idx = [i for i, _ in rows]
-    rc = dataclasses.replace(refine_config, iters=cfg.iters, gate_frac=0.0, top_parts=NUM_JOINTS)
-    rc.sigma_start = rc.sigma_end  # from a refined fit: the final kernel width from the start
+    # from a refined fit: no part gating, no swing search (the fit had it), the kernel at its final width
+    rc = dataclasses.replace(
+        refine_config, iters=cfg.iters, gate_frac=0.0, top_parts=NUM_JOINTS, swing_at=-1.0
+    )
+    rc.sigma_start = rc.sigma_end
     pts = torch.as_tensor(np.stack([points[i] for i in idx]), dtype=dtype, device=device)
     init = {
         "local_rotmats": torch.as_tensor(np.stack(starts), dtype=dtype, device=device),

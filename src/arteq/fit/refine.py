@@ -20,6 +20,11 @@ theta_k^start exp([delta_k])``, starting at 0), a translation offset and the bet
   ``w_delta_end``), ``w_betas`` mean squared betas (units of sigma); betas beyond the first
   ``early_betas`` are frozen for the first third.
 
+Two searches restart joints the local matches cannot bring back (:func:`swing_search`, :func:`twist_search`;
+experiments/fitting/turn_search.md): at the end of the gated phase, an arm segment that sits away from its
+points is swung about its joint to point where they are; at 75 % of the iterations, each hand is rolled
+about its forearm to the turn that lies closest to the scan. A kept turn becomes its joint's start.
+
 Adam with per-group learning rates and cosine decay. Correspondences: ``scipy.spatial.cKDTree`` on CPU
 (one tree per part when gated), brute-force ``torch.cdist`` in chunks on GPU.
 """
@@ -38,9 +43,10 @@ import roma
 import torch
 
 from arteq.body.lbs import skin
-from arteq.body.skeleton import NUM_JOINTS
+from arteq.body.skeleton import JOINT_NAMES, NUM_JOINTS, PARENTS
 from arteq.geometry.normals import vertex_normals
 from arteq.geometry.pointops import fps_from_centroid
+from arteq.geometry.rotations import rotation_between
 from arteq.results import BodyFitResult
 
 
@@ -66,8 +72,28 @@ class RefineConfig:
     lr_transl: float = 0.01
     lr_betas: float = 0.05
     reassoc_every: int = 2  # after the gated phase, re-match every this many iterations
+    #: turn search (:func:`twist_search`): at this fraction of the iterations (< 0: never), each joint of
+    #: ``twist_joints`` is tried turned about its parent segment's axis by ``twist_steps`` angles
+    twist_at: float = 0.75
+    twist_joints: str = "left_wrist,right_wrist"
+    twist_steps: int = 12
+    twist_min_gain: float = 0.15  # cm: a turn is kept when it lowers the part's score by this much
+    twist_max_score: float = 2.5  # cm: and when the turned part's score is at most this (it fits there)
+    #: swing search (:func:`swing_search`): at this fraction of the iterations (< 0: never), each branch of
+    #: ``swing_joints`` scoring above ``swing_min_score`` (cm) is tried pointing in ``swing_dirs`` directions
+    #: (measured in experiments/fitting/turn_search.md)
+    swing_at: float = 0.4
+    swing_joints: str = "left_shoulder,right_shoulder,left_elbow,right_elbow"
+    swing_dirs: int = 162
+    swing_min_score: float = 3.0
+    swing_min_gain: float = 1.0  # cm: a swing is kept when it lowers the branch's score by this much
+    swing_max_score: float = 3.0  # cm: and when the swung branch scores at most this
     backend: str = "auto"  # auto | kdtree | torch
     workers: int = 1
+
+    def __post_init__(self) -> None:
+        turn_joint_ids(self.twist_joints)  # a bad joint name fails here, not mid-fit
+        turn_joint_ids(self.swing_joints)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -120,6 +146,25 @@ class BodyTables:
             self.incidence = coo.coalesce().to_sparse_csr()
         self.j_template = body.J_regressor @ body.v_template  # [K, 3]
         self.j_shapedirs = torch.einsum("kv,vcl->kcl", body.J_regressor, body.shapedirs)  # [K, 3, nb]
+        self._template = template
+        self._part_labels = body.part_labels.cpu()
+        self._branches: dict[tuple[int, int], torch.Tensor] = {}
+
+    def branch_subset(self, joint: int, count: int = 150) -> torch.Tensor:
+        """``[<= count]`` evenly spread vertices (FPS) of ``joint``'s part and its descendants' (cached)."""
+        key = (joint, count)
+        if key not in self._branches:
+            inside = torch.tensor(branch_parts(joint))
+            vidx = torch.nonzero(torch.isin(self._part_labels, inside))[:, 0]
+            pick = fps_from_centroid(self._template[:, vidx], min(count, len(vidx)))[0]
+            self._branches[key] = vidx[pick].to(self.j_template.device)
+        return self._branches[key]
+
+    def branch_fraction(self, joint: int) -> float:
+        """The share of the body's surface on ``joint``'s part and its descendants' (of the evenly spread
+        model -> scan subset)."""
+        labels = self._part_labels[self.m2s_subset.cpu()]
+        return float(torch.isin(labels, torch.tensor(branch_parts(joint))).double().mean())
 
 
 _TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -209,6 +254,11 @@ class _KDTreeMatcher:
         idx = np.stack([t.query(v[i], workers=self.workers)[1] for i, t in enumerate(self.scan_trees)])
         return torch.from_numpy(idx).to(verts.device)
 
+    def scan_distance(self, i: int, query: torch.Tensor) -> torch.Tensor:
+        """Distance of each of ``query [M, 3]`` to scan ``i``'s nearest point."""
+        d = self.scan_trees[i].query(query.detach().cpu().double().numpy(), workers=self.workers)[0]
+        return torch.from_numpy(d).to(query.device)
+
 
 class _TorchMatcher:
     """Nearest-vertex matches by brute force (``torch.cdist`` in chunks): for GPUs."""
@@ -242,6 +292,12 @@ class _TorchMatcher:
         v = verts.detach().to(self.points.dtype)
         return torch.stack([self._nearest(v[i], self.points[i], None) for i in range(v.shape[0])])
 
+    def scan_distance(self, i: int, query: torch.Tensor) -> torch.Tensor:
+        """Distance of each of ``query [M, 3]`` to scan ``i``'s nearest point."""
+        q = query.detach().to(self.points.dtype)
+        return torch.cat([torch.cdist(q[s : s + self.chunk], self.points[i]).amin(1)
+                          for s in range(0, q.shape[0], self.chunk)])  # fmt: skip
+
 
 def visible_trimmed_mean(
     values: torch.Tensor, d2: torch.Tensor, visible: torch.Tensor, trim: float
@@ -257,6 +313,198 @@ def visible_trimmed_mean(
 def _gather(x: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
     """``x [B, M, C]``, ``idx [B, N]`` -> ``[B, N, C]``."""
     return torch.gather(x, 1, idx[..., None].expand(-1, -1, x.shape[-1]))
+
+
+def turn_joint_ids(names: str) -> list[int]:
+    """Joint indices of a comma-separated list of joint names (``""``: none); an unknown name is an error."""
+    out = []
+    for name in (n.strip() for n in names.split(",")):
+        if not name:
+            continue
+        if name not in JOINT_NAMES or PARENTS[JOINT_NAMES.index(name)] < 0:
+            raise ValueError(
+                f"turn search joints: {name!r} is not a non-root joint ({', '.join(JOINT_NAMES[1:])})"
+            )
+        out.append(JOINT_NAMES.index(name))
+    return out
+
+
+def twist_search(
+    vertices: torch.Tensor,
+    joints: torch.Tensor,
+    subsets: dict[int, torch.Tensor],
+    scan_distance: Callable[[int, torch.Tensor], torch.Tensor],
+    steps: int = 12,
+    min_gain_cm: float = 0.15,
+    max_score_cm: float = 2.5,
+    cap_cm: float = 5.0,
+) -> torch.Tensor:
+    """Turns about the parent segments' axes that bring parts onto the scan: ``[B, K, 3, 3]`` (world frame,
+    identity where nothing is kept).
+
+    For each joint ``j`` of ``subsets`` (joint -> vertex indices of its part and its descendants'), the
+    branch is turned rigidly about the axis from ``j``'s parent joint through ``j`` (a hand about the
+    forearm, a foot about the shin: the joint stays where it is) by ``steps`` equal angles, and scored by
+    its vertices' mean distance to the scan (``scan_distance(scan, points)``, capped at ``cap_cm``). The
+    best turn is kept when it scores ``min_gain_cm`` below the unturned branch and at most ``max_score_cm``
+    (a branch that is not where its points are, is not fixed by turning it: a turn then only finds some
+    other points to cover). Why: a hand's roll about
+    the forearm is what the network gets least right and what the refinement's local matches cannot undo
+    (half a turn away, a flat hand fits the scan's hand points about as well).
+    """
+    b = vertices.shape[0]
+    eye = torch.eye(3, dtype=vertices.dtype, device=vertices.device)
+    turns = eye.expand(b, NUM_JOINTS, 3, 3).clone()
+    angles = torch.arange(steps, dtype=vertices.dtype, device=vertices.device) * (2 * math.pi / steps)
+    for j, sub in subsets.items():
+        axis = joints[:, j] - joints[:, PARENTS[j]]
+        axis = axis / axis.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+        for i in range(b):
+            rots = roma.rotvec_to_rotmat(angles[:, None] * axis[i])  # [steps, 3, 3]
+            local = vertices[i, sub] - joints[i, j]
+            cand = torch.einsum("sab,vb->sva", rots, local) + joints[i, j]
+            d = scan_distance(i, cand.reshape(-1, 3)).reshape(steps, -1)
+            score = (d * 100).clamp_max(cap_cm).mean(-1)
+            best = int(score.argmin())
+            if best != 0 and score[0] - score[best] >= min_gain_cm and score[best] <= max_score_cm:
+                turns[i, j] = rots[best]
+    return turns
+
+
+def sphere_directions(count: int) -> np.ndarray:
+    """``[count, 3]`` unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    i = np.arange(count) + 0.5
+    z = 1 - 2 * i / count
+    r = np.sqrt(np.clip(1 - z * z, 0, None))
+    phi = np.pi * (1 + 5**0.5) * i
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def branch_parts(joint: int) -> list[int]:
+    """``joint`` and its descendants (the parts that move with it)."""
+    inside = [joint]
+    for k in range(NUM_JOINTS):  # parents precede children
+        if PARENTS[k] in inside:
+            inside.append(k)
+    return inside
+
+
+def turns_toward(aim: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """``[D, 3, 3]``: the smallest rotations taking direction ``aim [3]`` to each of ``directions [D, 3]``
+    (:func:`arteq.geometry.rotations.rotation_between`, batched)."""
+    a = aim / np.linalg.norm(aim)
+    d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    axis = np.cross(a, d)
+    sin, cos = np.linalg.norm(axis, axis=1), d @ a
+    out = roma.rotvec_to_rotmat(
+        torch.as_tensor(axis / np.maximum(sin, 1e-12)[:, None] * np.arctan2(sin, cos)[:, None])
+    ).numpy()
+    for k in np.nonzero((sin < 1e-9) & (cos < 0))[0]:  # opposite: a half turn about a normal
+        out[k] = rotation_between(torch.as_tensor(a), torch.as_tensor(d[k])).numpy()
+    return out
+
+
+def _swing_scores(
+    cands: np.ndarray, own: np.ndarray, d_rest: np.ndarray, carried: float, cap_cm: float
+) -> np.ndarray:
+    """:func:`swing_search`'s score (cm) of each candidate placement ``cands [D, S, 3]`` of a branch: the
+    mean capped distance of its vertices to the points it is responsible for (``own [M, 3]``; not to the
+    whole scan, where a limb folded onto the body would find points too), plus the capped distance of each
+    of those points to it or to the rest of the body (``d_rest [M]``, cm), summed over the ``carried``
+    points the branch should carry. ``[D]``."""
+    if not len(own):
+        return np.full(len(cands), cap_cm)
+    weight = 1.0
+    if len(own) > 256:  # an even subset stands for them all
+        pick = np.linspace(0, len(own) - 1, 256).round().astype(int)
+        weight, own, d_rest = len(own) / 256, own[pick], d_rest[pick]
+    c = torch.as_tensor(cands, dtype=torch.float32)
+    o = torch.as_tensor(own, dtype=torch.float32)
+    d = torch.cat(
+        [torch.cdist(c[k : k + 32], o.expand(len(c[k : k + 32]), -1, -1)) for k in range(0, len(c), 32)]
+    )
+    near_own = (d.amin(2) * 100).clamp_max(cap_cm).mean(1).double()  # [D]; d: [D, S, M] metres
+    to_branch = (d.amin(1).double() * 100).clamp_max(cap_cm)
+    explained = torch.minimum(to_branch, torch.as_tensor(d_rest).clamp_max(cap_cm)).sum(1)
+    return (near_own + weight * explained / max(1.0, carried)).numpy()
+
+
+def swing_search(
+    points: list[np.ndarray],
+    vertices: np.ndarray,
+    joints: np.ndarray,
+    part_labels: np.ndarray,
+    subsets: dict[int, np.ndarray],
+    fractions: dict[int, float],
+    dirs: int = 162,
+    min_score_cm: float = 3.0,
+    min_gain_cm: float = 1.0,
+    max_score_cm: float = 3.0,
+    explained_cm: float = 3.0,
+    cap_cm: float = 5.0,
+) -> np.ndarray:
+    """Swings about joints that put lost limbs where their points are: ``[B, K, 3, 3]`` world-frame turns
+    (identity where nothing is kept).
+
+    A limb the network points the wrong way (a forearm hanging where the scan's is raised) sits in empty
+    space: the refinement's kernel gives far points no pull and its trimmed model -> scan term drops the
+    limb, so nothing moves it back. Per scan, each branch of ``subsets`` (joint -> evenly spread vertex
+    indices of the joint's part and its descendants) is scored against the points it is responsible for
+    (:func:`_swing_scores`, cm: those nearest one of its vertices, and those within its reach that no vertex
+    explains within ``explained_cm``). A branch scoring above ``min_score_cm`` is swung rigidly about its
+    joint to point at each of ``dirs`` directions (then finer, around the best); the best swing is kept
+    when it scores ``min_gain_cm`` below the branch as it is and at most ``max_score_cm``. Branches are
+    tried worst first; one that moves stops its ancestors and descendants from being tried in the same
+    search.
+    """
+    from scipy.spatial import cKDTree
+
+    b = vertices.shape[0]
+    turns = np.tile(np.eye(3), (b, NUM_JOINTS, 1, 1))
+    grid = sphere_directions(dirs)
+    child = {j: next(k for k in range(NUM_JOINTS) if PARENTS[k] == j) for j in subsets}
+    branch = {j: np.isin(part_labels, branch_parts(j)) for j in subsets}
+    for i in range(b):
+        pts, verts = points[i], vertices[i]
+        d_fit, nearest = cKDTree(verts).query(pts)
+        loose = d_fit * 100 > explained_cm
+        todo = []
+        for j, sub in subsets.items():
+            pivot = joints[i, j]
+            reach = np.linalg.norm(verts[branch[j]] - pivot, axis=1).max() + explained_cm / 100
+            own = pts[(loose & (np.linalg.norm(pts - pivot, axis=1) <= reach)) | branch[j][nearest]]
+            d_rest = cKDTree(verts[~branch[j]][::3]).query(own)[0] * 100 if len(own) else np.zeros(0)
+            carried = len(pts) * fractions[j]
+            current = float(_swing_scores(verts[sub][None], own, d_rest, carried, cap_cm)[0])
+            todo.append((current, j, own, d_rest, carried))
+        blocked: set[int] = set()
+        for current, j, own, d_rest, carried in sorted(todo, key=lambda t: -t[0]):
+            if current <= min_score_cm or j in blocked:
+                continue
+            pivot = joints[i, j]
+            aim = joints[i, child[j]] - pivot
+            local = verts[subsets[j]] - pivot
+            best, best_rot, best_dir = current, None, None
+            for step in (None, 8.0, 4.0, 2.0):  # the grid, then finer around its best
+                if step is None:
+                    directions = grid
+                else:
+                    u = np.cross(best_dir, np.eye(3)[np.argmin(np.abs(best_dir))])
+                    u /= np.linalg.norm(u)
+                    tilt = np.stack([u, -u, np.cross(best_dir, u), -np.cross(best_dir, u)]) * np.radians(step)
+                    directions = roma.rotvec_to_rotmat(torch.as_tensor(tilt)).numpy() @ best_dir
+                rots = turns_toward(aim, directions)
+                cands = np.einsum("dab,sb->dsa", rots, local) + pivot
+                scores = _swing_scores(cands, own, d_rest, carried, cap_cm)
+                k = int(scores.argmin())
+                if scores[k] < best:
+                    best, best_rot, best_dir = float(scores[k]), rots[k], directions[k]
+                if best_dir is None:
+                    break
+            if best_rot is not None and current - best >= min_gain_cm and best <= max_score_cm:
+                turns[i, j] = best_rot
+                blocked.update(k for k in subsets if k in branch_parts(j) or j in branch_parts(k))
+    return turns
 
 
 def refine(
@@ -334,11 +582,52 @@ def refine(
     early_mask = torch.zeros(nb, dtype=dtype, device=device)
     early_mask[: cfg.early_betas] = 1
     keep_m2s = max(1, int(round((1 - cfg.m2s_trim) * len(m2s_subset))))
+    searches: dict[int, list[tuple[str, list[int]]]] = {}  # iteration -> [(kind, joints)]
+    for kind, at, names in (
+        ("swing", cfg.swing_at, cfg.swing_joints),
+        ("twist", cfg.twist_at, cfg.twist_joints),
+    ):  # noqa: E501
+        ids = turn_joint_ids(names)
+        when = int(round(at * iters)) if at >= 0 and ids else -1
+        if when > gate_iters:  # on an iteration that matches again anyway (scans stay independent)
+            when -= (when - gate_iters) % max(1, cfg.reassoc_every)
+        if 0 <= when < iters:
+            searches.setdefault(when, []).append((kind, ids))
     history: list[dict[str, float]] = []
     idx = normals = w = visible = None
 
     def pose_of(d: torch.Tensor) -> torch.Tensor:
         return start_rot @ roma.rotvec_to_rotmat(d)
+
+    @torch.no_grad()
+    def turned_start(start: torch.Tensor, kind: str, ids: list[int]) -> torch.Tensor:
+        """:func:`swing_search` or :func:`twist_search` on the current fit; a kept turn becomes its joint's
+        start (and the prior's anchor), with that joint's residual and Adam moments reset to 0."""
+        rot = pose_of(delta)
+        posed = body(betas=betas, pose=rot, transl=transl0 + dt)
+        if kind == "twist":
+            subsets = {j: tables.branch_subset(j) for j in ids}
+            turns = twist_search(posed.vertices, posed.joints, subsets, matcher.scan_distance,
+                                 cfg.twist_steps, cfg.twist_min_gain, cfg.twist_max_score)  # fmt: skip
+        else:
+            pts = [p.cpu().double().numpy() for p in points]
+            turns = swing_search(
+                pts, posed.vertices.cpu().double().numpy(), posed.joints.cpu().double().numpy(),
+                part_labels.cpu().numpy(), {j: tables.branch_subset(j).cpu().numpy() for j in ids},
+                {j: tables.branch_fraction(j) for j in ids}, cfg.swing_dirs, cfg.swing_min_score,
+                cfg.swing_min_gain, cfg.swing_max_score,
+            )  # fmt: skip
+            turns = torch.as_tensor(turns, dtype=dtype, device=device)
+        changed = (turns - torch.eye(3, dtype=dtype, device=device)).abs().amax((-1, -2)) > 0
+        if not changed.any():
+            return start
+        par = posed.global_rotmats[:, [max(p, 0) for p in PARENTS]]
+        turned = par.transpose(-1, -2) @ turns @ par @ rot  # local rotation of the turned global one
+        delta[changed] = 0
+        for moment in ("exp_avg", "exp_avg_sq"):
+            if moment in opt.state.get(delta, {}):
+                opt.state[delta][moment][changed] = 0
+        return torch.where(changed[..., None, None], turned, start)
 
     for it in range(iters):
         frac = it / max(1, iters - 1)
@@ -346,6 +635,8 @@ def refine(
         w_delta = cfg.w_delta + (cfg.w_delta_end - cfg.w_delta) * frac
         for g, lr in zip(opt.param_groups, base_lr):
             g["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * frac)))
+        for kind, ids in searches.get(it, []):
+            start_rot = turned_start(start_rot, kind, ids)
         rot = pose_of(delta)
         gated = it < gate_iters
         with torch.no_grad():
