@@ -156,16 +156,21 @@ def test_refine_config_from_command_line_strings():
         RefineConfig.from_strings(["iters=1.5"])
 
 
-def rolled_hands(body, s, centre, angles_deg):
-    """The truth's local rotations with each wrist in ``angles_deg`` ({joint: degrees}) turned about its
-    forearm (elbow -> wrist, world frame) and the posed output of that start."""
+def turned_truth(body, s, centre, turns):
+    """The truth's start with each joint of ``turns`` ({joint: (kind, degrees)}) turned in the world frame:
+    ``roll`` about its parent segment (parent joint -> joint, a hand about its forearm), ``swing`` about
+    the normal to its own segment (joint -> child) and the z axis. Returns the start and its posed body."""
     pose = torch.as_tensor(s["pose"], dtype=torch.float32)[None].clone()
     betas = torch.as_tensor(s["betas"], dtype=torch.float32)[None]
     transl = torch.as_tensor(s["transl"] - centre, dtype=torch.float32)[None]
     with torch.no_grad():
         o = body(betas=betas, pose=pose, transl=transl)
-    for j, deg in angles_deg.items():
-        axis = o.joints[0, j] - o.joints[0, PARENTS[j]]
+    for j, (kind, deg) in turns.items():
+        if kind == "roll":
+            axis = o.joints[0, j] - o.joints[0, PARENTS[j]]
+        else:
+            seg = o.joints[0, PARENTS.index(j)] - o.joints[0, j]
+            axis = torch.linalg.cross(seg, torch.tensor([0.0, 0.0, 1.0]))
         turn = roma.rotvec_to_rotmat(axis / axis.norm() * np.radians(deg))
         parent = o.global_rotmats[0, PARENTS[j]]
         pose[0, j] = parent.T @ turn @ parent @ pose[0, j]
@@ -180,7 +185,7 @@ def test_twist_search_turns_a_rolled_hand_back(body):
     s = synthetic_scan(body, "test_id", 0, 5000, offset=0.0)
     pts = torch.as_tensor(s["points"], dtype=torch.float32)[None]
     lw, rw = JOINT_NAMES.index("left_wrist"), JOINT_NAMES.index("right_wrist")
-    _, posed = rolled_hands(body, s, 0.0, {rw: 150.0})
+    _, posed = turned_truth(body, s, 0.0, {rw: ("roll", 150.0)})
     matcher = _KDTreeMatcher(pts, allowed_parts(torch.ones(1, 5000, 22)), body.part_labels, 1)
     tables = body_tables(body)
     subsets = {j: tables.branch_subset(j) for j in (lw, rw)}
@@ -202,7 +207,7 @@ def test_refinement_undoes_rolled_hands(body):
     c = s["points"].mean(0)
     pts = torch.as_tensor(s["points"] - c, dtype=torch.float32)[None]
     lw, rw = JOINT_NAMES.index("left_wrist"), JOINT_NAMES.index("right_wrist")
-    init, _ = rolled_hands(body, s, c, {lw: 150.0, rw: -120.0})
+    init, _ = turned_truth(body, s, c, {lw: ("roll", 150.0), rw: ("roll", -120.0)})
     probs = noisy_probs(s["labels"], rng)[None]
     hands = np.isin(body.part_labels.numpy(), [lw, rw])
     err = {}
@@ -219,23 +224,8 @@ def test_twist_joints_are_checked():
         turn_joint_ids("left_hand")
     with pytest.raises(ValueError, match="'pelvis'"):
         turn_joint_ids("pelvis")
-
-
-def swung(body, s, centre, joint, deg):
-    """The truth's start with ``joint``'s branch swung ``deg`` about an axis normal to its segment."""
-    pose = torch.as_tensor(s["pose"], dtype=torch.float32)[None].clone()
-    betas = torch.as_tensor(s["betas"], dtype=torch.float32)[None]
-    transl = torch.as_tensor(s["transl"] - centre, dtype=torch.float32)[None]
-    with torch.no_grad():
-        o = body(betas=betas, pose=pose, transl=transl)
-    seg = o.joints[0, PARENTS.index(joint)] - o.joints[0, joint]
-    normal = torch.linalg.cross(seg, torch.tensor([0.0, 0.0, 1.0]))
-    turn = roma.rotvec_to_rotmat(normal / normal.norm() * np.radians(deg))
-    parent = o.global_rotmats[0, PARENTS[joint]]
-    pose[0, joint] = parent.T @ turn @ parent @ pose[0, joint]
-    with torch.no_grad():
-        o = body(betas=betas, pose=pose, transl=transl)
-    return {"local_rotmats": pose, "betas": betas, "transl": transl}, o
+    with pytest.raises(ValueError, match="'left_wrist' ends a chain"):
+        RefineConfig(swing_joints="left_elbow,left_wrist")
 
 
 def test_swing_search_points_a_lost_forearm_back(body):
@@ -243,7 +233,7 @@ def test_swing_search_points_a_lost_forearm_back(body):
     spacing is about 16 deg); the right arm, where it should be, is not tried."""
     s = synthetic_scan(body, "test_id", 2, 5000, offset=0.0)
     le, re_ = JOINT_NAMES.index("left_elbow"), JOINT_NAMES.index("right_elbow")
-    _, posed = swung(body, s, 0.0, le, 100.0)
+    _, posed = turned_truth(body, s, 0.0, {le: ("swing", 100.0)})
     tables = body_tables(body)
     turns = swing_search(
         [s["points"]], posed.vertices.double().numpy(), posed.joints.double().numpy(),
@@ -267,7 +257,7 @@ def test_refinement_brings_a_lost_forearm_back(body):
     c = s["points"].mean(0)
     pts = torch.as_tensor(s["points"] - c, dtype=torch.float32)[None]
     le = JOINT_NAMES.index("left_elbow")
-    init, _ = swung(body, s, c, le, 100.0)
+    init, _ = turned_truth(body, s, c, {le: ("swing", 100.0)})
     probs = noisy_probs(s["labels"], rng)[None]
     arm = np.isin(body.part_labels.numpy(), branch_parts(le))
     err = {}

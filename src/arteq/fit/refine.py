@@ -93,7 +93,11 @@ class RefineConfig:
 
     def __post_init__(self) -> None:
         turn_joint_ids(self.twist_joints)  # a bad joint name fails here, not mid-fit
-        turn_joint_ids(self.swing_joints)
+        for j in turn_joint_ids(self.swing_joints):
+            if j not in PARENTS:
+                raise ValueError(
+                    f"swing_joints: {JOINT_NAMES[j]!r} ends a chain (a swing aims a joint's child)"
+                )
 
     def to_dict(self) -> dict:
         return asdict(self)
