@@ -198,23 +198,30 @@ def test_twist_search_turns_a_rolled_hand_back(body):
     assert torch.equal(far, torch.eye(3).expand_as(far))
 
 
-def test_refinement_undoes_rolled_hands(body):
-    """From the truth with the hands rolled 150 and -120 deg about their forearms (20 % wrong labels), the
-    refinement with its turn search brings the hands back (hand V2V < 1.5 cm); without it they stay
-    rolled (> 4 cm): the search, not the local matches, undoes the roll."""
-    rng = np.random.default_rng(0)
-    s = synthetic_scan(body, "test_id", 1, 5000, offset=0.0)
+@pytest.mark.parametrize(
+    "index, turns, parts, off, bound_off",
+    [  # hands rolled about their forearms; a forearm swung away from its points
+        (1, {"left_wrist": ("roll", 150.0), "right_wrist": ("roll", -120.0)}, ["left_wrist", "right_wrist"],
+         {"twist_at": -1.0}, 4.0),
+        (2, {"left_elbow": ("swing", 100.0)}, ["left_elbow", "left_wrist"], {"swing_at": -1.0}, 10.0),
+    ],
+)  # fmt: skip
+def test_refinement_restarts_turned_joints(body, index, turns, parts, off, bound_off):
+    """From the truth with joints turned away (20 % wrong labels), the refinement with its searches brings
+    the turned parts back (V2V < 1.5 cm on them); with the search off they stay off (> ``bound_off`` cm):
+    the searches, not the local matches, undo the turns."""
+    rng = np.random.default_rng(index - 1)
+    s = synthetic_scan(body, "test_id", index, 5000, offset=0.0)
     c = s["points"].mean(0)
     pts = torch.as_tensor(s["points"] - c, dtype=torch.float32)[None]
-    lw, rw = JOINT_NAMES.index("left_wrist"), JOINT_NAMES.index("right_wrist")
-    init, _ = turned_truth(body, s, c, {lw: ("roll", 150.0), rw: ("roll", -120.0)})
+    init, _ = turned_truth(body, s, c, {JOINT_NAMES.index(j): t for j, t in turns.items()})
     probs = noisy_probs(s["labels"], rng)[None]
-    hands = np.isin(body.part_labels.numpy(), [lw, rw])
+    sel = np.isin(body.part_labels.numpy(), [JOINT_NAMES.index(j) for j in parts])
     err = {}
-    for name, cfg in (("search", RefineConfig()), ("none", RefineConfig(twist_at=-1.0))):
+    for name, cfg in (("search", RefineConfig()), ("none", RefineConfig(**off))):
         out = refine(body, pts, probs, init, cfg)
-        err[name] = v2v_cm(out.vertices[0].numpy()[hands] + c, s["vertices"][hands])
-    assert err["search"] < 1.5 and err["none"] > 4.0, err
+        err[name] = v2v_cm(out.vertices[0].numpy()[sel] + c, s["vertices"][sel])
+    assert err["search"] < 1.5 and err["none"] > bound_off, err
 
 
 def test_twist_joints_are_checked():
@@ -247,24 +254,6 @@ def test_swing_search_points_a_lost_forearm_back(body):
     after = v2v_cm(moved, s["vertices"][arm])
     assert before > 15 and after < 3.0, (before, after)
     assert np.array_equal(turns[0, re_], np.eye(3))
-
-
-def test_refinement_brings_a_lost_forearm_back(body):
-    """From the truth with the left forearm swung 100 deg (20 % wrong labels): with the swing search the
-    forearm and hand end within 1.5 cm, without it they stay lost (> 10 cm)."""
-    rng = np.random.default_rng(1)
-    s = synthetic_scan(body, "test_id", 2, 5000, offset=0.0)
-    c = s["points"].mean(0)
-    pts = torch.as_tensor(s["points"] - c, dtype=torch.float32)[None]
-    le = JOINT_NAMES.index("left_elbow")
-    init, _ = turned_truth(body, s, c, {le: ("swing", 100.0)})
-    probs = noisy_probs(s["labels"], rng)[None]
-    arm = np.isin(body.part_labels.numpy(), branch_parts(le))
-    err = {}
-    for name, cfg in (("search", RefineConfig()), ("none", RefineConfig(swing_at=-1.0))):
-        out = refine(body, pts, probs, init, cfg)
-        err[name] = v2v_cm(out.vertices[0].numpy()[arm] + c, s["vertices"][arm])
-    assert err["search"] < 1.5 and err["none"] > 10.0, err
 
 
 def test_sphere_directions_cover_the_sphere():
