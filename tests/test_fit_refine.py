@@ -22,7 +22,6 @@ from arteq.fit.refine import (
     sphere_directions,
     swing_search,
     turn_joint_ids,
-    turns_toward,
     twist_search,
 )
 
@@ -265,13 +264,15 @@ def test_sphere_directions_cover_the_sphere():
     assert worst < 15.0, worst
 
 
-def test_turns_toward_agrees_with_rotation_between():
+def test_rotation_between_batched_agrees_with_one_by_one():
+    """The swing search's batched call: each of many directions (one the same as ``aim``, one opposite)
+    gets the rotation a one-by-one call gives, and it takes ``aim`` there."""
     from arteq.geometry.rotations import rotation_between
 
     rng = np.random.default_rng(0)
     aim = rng.normal(size=3)
-    dirs = np.concatenate([rng.normal(size=(20, 3)), [aim * 2.0, -aim]])  # the same and the opposite way
-    got = turns_toward(aim, dirs)
+    dirs = np.concatenate([rng.normal(size=(20, 3)), [aim * 2.0, -aim]])
+    got = rotation_between(torch.as_tensor(aim), torch.as_tensor(dirs)).numpy()
     for d, r in zip(dirs, got):
         want = rotation_between(torch.as_tensor(aim), torch.as_tensor(d)).numpy()
         np.testing.assert_allclose(r, want, atol=1e-9)

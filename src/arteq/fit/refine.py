@@ -352,9 +352,9 @@ def twist_search(
     its vertices' mean distance to the scan (``scan_distance(scan, points)``, capped at ``cap_cm``). The
     best turn is kept when it scores ``min_gain_cm`` below the unturned branch and at most ``max_score_cm``
     (a branch that is not where its points are, is not fixed by turning it: a turn then only finds some
-    other points to cover). Why: a hand's roll about
-    the forearm is what the network gets least right and what the refinement's local matches cannot undo
-    (half a turn away, a flat hand fits the scan's hand points about as well).
+    other points to cover). Why: a hand's roll about the forearm is what the network gets least right and
+    what the refinement's local matches cannot undo (half a turn away, a flat hand fits the scan's hand
+    points about as well).
     """
     b = vertices.shape[0]
     eye = torch.eye(3, dtype=vertices.dtype, device=vertices.device)
@@ -391,21 +391,6 @@ def branch_parts(joint: int) -> list[int]:
         if PARENTS[k] in inside:
             inside.append(k)
     return inside
-
-
-def turns_toward(aim: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """``[D, 3, 3]``: the smallest rotations taking direction ``aim [3]`` to each of ``directions [D, 3]``
-    (:func:`arteq.geometry.rotations.rotation_between`, batched)."""
-    a = aim / np.linalg.norm(aim)
-    d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    axis = np.cross(a, d)
-    sin, cos = np.linalg.norm(axis, axis=1), d @ a
-    out = roma.rotvec_to_rotmat(
-        torch.as_tensor(axis / np.maximum(sin, 1e-12)[:, None] * np.arctan2(sin, cos)[:, None])
-    ).numpy()
-    for k in np.nonzero((sin < 1e-9) & (cos < 0))[0]:  # opposite: a half turn about a normal
-        out[k] = rotation_between(torch.as_tensor(a), torch.as_tensor(d[k])).numpy()
-    return out
 
 
 def _swing_scores(
@@ -497,7 +482,7 @@ def swing_search(
                     u /= np.linalg.norm(u)
                     tilt = np.stack([u, -u, np.cross(best_dir, u), -np.cross(best_dir, u)]) * np.radians(step)
                     directions = roma.rotvec_to_rotmat(torch.as_tensor(tilt)).numpy() @ best_dir
-                rots = turns_toward(aim, directions)
+                rots = rotation_between(torch.as_tensor(aim), torch.as_tensor(directions)).numpy()
                 cands = np.einsum("dab,sb->dsa", rots, local) + pivot
                 scores = _swing_scores(cands, own, d_rest, carried, cap_cm)
                 k = int(scores.argmin())
@@ -590,7 +575,7 @@ def refine(
     for kind, at, names in (
         ("swing", cfg.swing_at, cfg.swing_joints),
         ("twist", cfg.twist_at, cfg.twist_joints),
-    ):  # noqa: E501
+    ):
         ids = turn_joint_ids(names)
         when = int(round(at * iters)) if at >= 0 and ids else -1
         if when > gate_iters:  # on an iteration that matches again anyway (scans stay independent)

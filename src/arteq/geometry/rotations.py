@@ -36,14 +36,13 @@ def geodesic_deg(r1: torch.Tensor, r2: torch.Tensor) -> torch.Tensor:
 
 
 def rotation_between(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """The smallest rotation ``[3, 3]`` taking direction ``a [3]`` to direction ``b [3]`` (opposite
-    directions: a half turn about an axis normal to ``a``)."""
-    a = a / a.norm()
-    b = b / b.norm()
+    """The smallest rotations ``[..., 3, 3]`` taking directions ``a [..., 3]`` to directions ``b [..., 3]``
+    (broadcast; opposite directions: a half turn about an axis normal to ``a``)."""
+    a, b = torch.broadcast_tensors(a / a.norm(dim=-1, keepdim=True), b / b.norm(dim=-1, keepdim=True))
     axis = torch.linalg.cross(a, b)
-    angle = torch.atan2(axis.norm(), (a * b).sum())
-    if axis.norm() < 1e-9 and (a * b).sum() < 0:
-        helper = torch.zeros_like(a)
-        helper[int(torch.argmin(a.abs()))] = 1.0
-        axis = torch.linalg.cross(a, helper)
-    return roma.rotvec_to_rotmat(axis / axis.norm().clamp_min(1e-12) * angle)
+    sin, cos = axis.norm(dim=-1, keepdim=True), (a * b).sum(-1, keepdim=True)
+    helper = torch.nn.functional.one_hot(a.abs().argmin(-1), 3).to(a.dtype)
+    opposite = (sin < 1e-9) & (cos < 0)
+    axis = torch.where(opposite, torch.linalg.cross(a, helper), axis)
+    angle = torch.atan2(sin, cos)
+    return roma.rotvec_to_rotmat(axis / axis.norm(dim=-1, keepdim=True).clamp_min(1e-12) * angle)
