@@ -443,6 +443,13 @@ def test_api_and_command_agree(tiny_ckpt, body, tmp_path):
     z = np.load(out / "scan.npz")
     np.testing.assert_allclose(res.vertices, z["vertices"], atol=1e-4)
     np.testing.assert_array_equal(res.point_labels, z["point_labels"])
+    # every stage of the fit is timed, and the total (the summary's seconds) is their sum
+    t = res.timings
+    stages = ("clean", "network", "scan_mode", "refine", "check", "crossing")
+    assert all(t[k] >= 0 for k in stages) and t["network"] > 0 and t["refine"] > 0
+    assert t["total"] == pytest.approx(sum(t[k] for k in stages))
+    rows = json.loads((out / "summary.json").read_text())["inputs"]
+    assert rows[0]["seconds"] > 0
 
 
 def test_failed_write_leaves_nothing(tiny_ckpt, body, tmp_path, monkeypatch):

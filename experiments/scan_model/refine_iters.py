@@ -7,7 +7,8 @@
 
 The 33 bodies of the check's labelled set (seed 0) without its acrobatic adults (everyday adults, children,
 heavy builds, 10 % clutter; experiments/fitting/check_calibration.py), fitted through the public API with
-each RefineConfig override (the crossed-limb step off: this was measured before it existed). Prints the
+each RefineConfig override (``points=N`` sets the Fitter's point count instead; the crossed-limb step off:
+this was measured before it existed). Prints the
 mean / median V2V (cm), usable fits (V2V <= 3 cm), the first 8 (everyday adults) mean, every scan's V2V and
 the median refinement seconds (one thread; not comparable across rows when other jobs share the cores).
 """
@@ -35,8 +36,11 @@ def main() -> None:
     items = [it for it in labelled_set(0) if it["group"] in groups]
     ckpt = sys.argv[1]
     for arm in sys.argv[2:]:
-        cfg = RefineConfig.from_strings(re.split(r",(?=\w+=)", arm))  # a comma before KEY= separates
-        f = Fitter(ckpt=ckpt, device="cpu", check=False, anny=False, refine_config=cfg, crossing=False)
+        sets = re.split(r",(?=\w+=)", arm)  # a comma before KEY= separates
+        points = [int(x.split("=")[1]) for x in sets if x.startswith("points=")]  # the Fitter's, not a knob
+        cfg = RefineConfig.from_strings([x for x in sets if not x.startswith("points=")])
+        f = Fitter(ckpt=ckpt, device="cpu", check=False, anny=False, refine_config=cfg, crossing=False,
+                   points=points[-1] if points else 5000)  # fmt: skip
         v, ts = [], []
         for it in items:
             r = f.fit_points(it["points"], name=it["name"])

@@ -516,14 +516,14 @@ class Fitter:
             net_in.append(resample(it["centred"], self.net_points, rng))
             ref_in.append(resample(it["centred"], self.points, rng))
         pred = self._network(net_in)
-        if self.device.type == "cuda":
-            torch.cuda.synchronize()
-        t_net = time.perf_counter() - t0
-        probs_net = pred["part_probs"].float().cpu().numpy()
+        probs_net = pred["part_probs"].float().cpu().numpy()  # (waits for a GPU)
         trees = [cKDTree(p) for p in net_in]
         probs_ref = np.stack([probs_net[i][trees[i].query(ref_in[i])[1]] for i in range(len(items))])
+        t_net = time.perf_counter() - t0
         init = {"local_rotmats": pred["local_rotmats"], "betas": pred["betas"], "transl": pred["transl"]}
+        t1 = time.perf_counter()
         modes = self._scan_modes(items, net_in, ref_in, pred, init)
+        t_modes = time.perf_counter() - t1
         t1 = time.perf_counter()
         dtype = self.body.v_template.dtype
         probs_fit = probs_ref  # the refinement's labels; what is reported stays the network's
@@ -652,6 +652,7 @@ class Fitter:
                     timings={
                         "clean": it.get("clean_seconds", 0.0),
                         "network": per_scan_net,
+                        "scan_mode": t_modes / len(items),
                         "refine": per_scan_ref,
                         "check": time.perf_counter() - t2,
                         "crossing": t_cross[i],
@@ -672,7 +673,7 @@ class Fitter:
             )
         for i, r in enumerate(results):
             t = r.timings
-            t["total"] = t["clean"] + t["network"] + t["refine"] + t["check"] + t["crossing"]
+            t["total"] = t["clean"] + t["network"] + t["scan_mode"] + t["refine"] + t["check"] + t["crossing"]
             r.anny_note = self.anny_note
             if self.anny_export is not None and r.written:
                 rot = roma.rotvec_to_rotmat(torch.as_tensor(pose_aa[i], dtype=torch.float64)).numpy()

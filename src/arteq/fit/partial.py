@@ -70,17 +70,19 @@ def one_sidedness(
     its sign from :func:`bulge`."""
     p = np.asarray(points, dtype=np.float64)
     axes = sphere_directions(2 * (num_dirs // 2))[: num_dirs // 2]  # one hemisphere of axes
-    scores = []
-    for d in axes:
-        e1, e2 = _image_axes(d)
-        key = _cells(np.stack([p @ e1, p @ e2], 1), cell_m)
-        height = p @ d  # seen from far along +d: the largest height; from -d: the smallest
-        top = np.full(key.max() + 1, -np.inf)
-        np.maximum.at(top, key, height)
-        bottom = np.full(key.max() + 1, np.inf)
-        np.minimum.at(bottom, key, height)
-        scores.append(max((height >= top[key] - tol_m).mean(), (height <= bottom[key] + tol_m).mean()))
-    scores = np.asarray(scores)
+    frames = [_image_axes(d) for d in axes]
+    e1, e2 = np.stack([f[0] for f in frames]), np.stack([f[1] for f in frames])
+    u, v, height = p @ e1.T, p @ e2.T, p @ axes.T  # [N, axes]; seen from far along +d: the largest height
+    cu = np.floor((u - u.min(0)) / cell_m).astype(np.int64)
+    cv = np.floor((v - v.min(0)) / cell_m).astype(np.int64)
+    key = cu * (cv.max(0) + 1) + cv  # each axis's image cells (as _cells)
+    size = key.max(0) + 1
+    key += np.concatenate([[0], np.cumsum(size)[:-1]])  # a range of cells per axis: one pass for all axes
+    top = np.full(size.sum(), -np.inf)
+    np.maximum.at(top, key.ravel(), height.ravel())
+    bottom = np.full(size.sum(), np.inf)
+    np.minimum.at(bottom, key.ravel(), height.ravel())
+    scores = np.maximum((height >= top[key] - tol_m).mean(0), (height <= bottom[key] + tol_m).mean(0))
     best = int(scores.argmax())
     # a sheet looks one-sided from a cone of directions: its centre is the mean of the near-best axes
     near = axes[scores >= scores[best] - near_best]

@@ -26,7 +26,9 @@ points is swung about its joint to point where they are; at 75 % of the iteratio
 about its forearm to the turn that lies closest to the scan. A kept turn becomes its joint's start.
 
 Adam with per-group learning rates and cosine decay. Correspondences: ``scipy.spatial.cKDTree`` on CPU
-(one tree per part when gated), brute-force ``torch.cdist`` in chunks on GPU.
+(one tree per part when gated), brute-force ``torch.cdist`` in chunks on GPU; scan -> model matches are
+renewed every ``gate_reassoc_every`` iterations while gated and every ``reassoc_every`` after (between
+renewals only the vertices the objective uses are posed), model -> scan matches at every iteration.
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ class RefineConfig:
     lr_transl: float = 0.01
     lr_betas: float = 0.05
     reassoc_every: int = 2  # after the gated phase, re-match every this many iterations
+    gate_reassoc_every: int = 2  # during the gated phase, re-match every this many iterations
     #: turn search (:func:`twist_search`): at this fraction of the iterations (< 0: never), each joint of
     #: ``twist_joints`` is tried turned about its parent segment's axis by ``twist_steps`` angles
     twist_at: float = 0.75
@@ -234,24 +237,33 @@ class _KDTreeMatcher:
         al = allowed.cpu().numpy()
         self.allowed_idx = [[np.nonzero(al[b, :, j])[0] for j in range(k)] for b in range(al.shape[0])]
 
+    def _tree(self, vertices: np.ndarray):
+        """A tree over posed vertices, rebuilt at every match: the sliding-midpoint build without the
+        median splits is faster to build and as fast to search here (the same nearest vertices)."""
+        return self.cKDTree(vertices, leafsize=24, balanced_tree=False)
+
+    def _gated(self, v: np.ndarray, i: int) -> np.ndarray:
+        """Scan ``i``'s points matched to the nearest vertex of ``v [V, 3]`` among their allowed parts."""
+        n = self.points.shape[1]
+        out = np.zeros(n, dtype=np.int64)
+        best = np.full(n, np.inf)
+        for j, vidx in enumerate(self.part_vidx):
+            pidx = self.allowed_idx[i][j]
+            if len(pidx) == 0 or len(vidx) == 0:
+                continue
+            d, nn = self._tree(v[vidx]).query(self.points[i, pidx], workers=self.workers)
+            upd = d < best[pidx]
+            best[pidx[upd]] = d[upd]
+            out[pidx[upd]] = vidx[nn[upd]]
+        return out
+
     def scan_to_model(self, verts: torch.Tensor, gated: bool) -> torch.Tensor:
         v = verts.detach().cpu().double().numpy()
-        b, n = self.points.shape[:2]
-        out = np.zeros((b, n), dtype=np.int64)
-        for i in range(b):
-            if not gated:
-                out[i] = self.cKDTree(v[i]).query(self.points[i], workers=self.workers)[1]
-                continue
-            best = np.full(n, np.inf)
-            for j, vidx in enumerate(self.part_vidx):
-                pidx = self.allowed_idx[i][j]
-                if len(pidx) == 0 or len(vidx) == 0:
-                    continue
-                d, nn = self.cKDTree(v[i, vidx]).query(self.points[i, pidx], workers=self.workers)
-                upd = d < best[pidx]
-                best[pidx[upd]] = d[upd]
-                out[i, pidx[upd]] = vidx[nn[upd]]
-        return torch.from_numpy(out).to(verts.device)
+        out = [
+            self._gated(v[i], i) if gated else self._tree(v[i]).query(self.points[i], workers=self.workers)[1]
+            for i in range(len(v))
+        ]
+        return torch.from_numpy(np.stack(out)).to(verts.device)
 
     def model_to_scan(self, verts: torch.Tensor) -> torch.Tensor:
         v = verts.detach().cpu().double().numpy()
@@ -578,12 +590,15 @@ def refine(
     ):
         ids = turn_joint_ids(names)
         when = int(round(at * iters)) if at >= 0 and ids else -1
-        if when > gate_iters:  # on an iteration that matches again anyway (scans stay independent)
+        # on an iteration that matches again anyway (scans stay independent)
+        if when >= gate_iters:
             when -= (when - gate_iters) % max(1, cfg.reassoc_every)
+        elif when > 0:
+            when -= when % max(1, cfg.gate_reassoc_every)
         if 0 <= when < iters:
             searches.setdefault(when, []).append((kind, ids))
     history: list[dict[str, float]] = []
-    idx = normals = w = visible = None
+    idx = normals = w = visible = sel = inv = None
 
     def pose_of(d: torch.Tensor) -> torch.Tensor:
         return start_rot @ roma.rotvec_to_rotmat(d)
@@ -628,11 +643,15 @@ def refine(
             start_rot = turned_start(start_rot, kind, ids)
         rot = pose_of(delta)
         gated = it < gate_iters
-        with torch.no_grad():
-            vd = body(betas=betas, pose=rot, transl=transl0 + dt).vertices
+        every = cfg.gate_reassoc_every if gated else cfg.reassoc_every
+        rematch = idx is None or (it - (0 if gated else gate_iters)) % max(1, every) == 0
+        if rematch or callback is not None:
+            with torch.no_grad():
+                vd = body(betas=betas, pose=rot, transl=transl0 + dt).vertices
             if callback is not None:
                 callback(it, vd)
-            if idx is None or gated or (it - gate_iters) % max(1, cfg.reassoc_every) == 0:
+        if rematch:
+            with torch.no_grad():
                 idx = matcher.scan_to_model(vd, gated)
                 normals = _gather(vertex_normals(vd, faces, tables.incidence if partial else None), idx)
                 if gated:
@@ -642,15 +661,16 @@ def refine(
                     w = torch.where(ok, 1.0, 0.5).to(dtype)
                 if m2s_visible is not None:
                     visible = m2s_visible(vd).to(device)[:, m2s_subset]
-            sub_idx = matcher.model_to_scan(vd[:, m2s_subset])
+                if partial:  # the vertices the objective uses: the matched ones and the subset
+                    sel, inv = torch.unique(torch.cat([idx.reshape(-1), m2s_subset]), return_inverse=True)
         if partial:
-            sel, inv = torch.unique(torch.cat([idx.reshape(-1), m2s_subset]), return_inverse=True)
             vs = skin_subset(body, tables, sel, betas, rot, transl0 + dt)
             v_match = _gather(vs, inv[: b * n].view(b, n))
             v_sub = vs[:, inv[b * n :]]
         else:
             verts = body(betas=betas, pose=rot, transl=transl0 + dt).vertices
             v_match, v_sub = _gather(verts, idx), verts[:, m2s_subset]
+        sub_idx = matcher.model_to_scan(v_sub)
         diff = (points - v_match) * 100.0
         r2 = (diff * normals).sum(-1).square() + cfg.w_p2p * diff.square().sum(-1)
         s2m = (w * geman_mcclure(r2, sigma)).sum(-1) / w.sum(-1)
