@@ -511,3 +511,56 @@ def test_refinement_settings_from_the_command_line(tiny_ckpt, body, tmp_path, ca
     out = tmp_path / "fits"
     assert cli_main([*base, "--out", str(out), "--set", "twist_at=-1", "--set", "swing_at=0.5"]) == 0
     assert np.isfinite(np.load(out / "scan.npz")["vertices"]).all()
+
+
+class _StandInSecond:
+    """A stand-in second network (``Fitter.second``): the ground truth of ``fitter.truth`` as
+    :class:`OracleFitter` gives it, or the same with every joint at rest (``rest=True``)."""
+
+    def __init__(self, fitter, rest: bool):
+        self.fitter, self.rest = fitter, rest
+
+    def net(self, x):
+        p = OracleFitter._network(self.fitter, [x[0].numpy()])
+        if self.rest:
+            p["local_rotmats"] = torch.eye(3).expand_as(p["local_rotmats"]).clone()
+        return {
+            "local_rotmats": p["local_rotmats"],
+            "part_probs": p["part_probs"],
+            "pool_weights": p["part_probs"],
+        }
+
+
+class _RestPoseFitter(OracleFitter):
+    """The oracle with every joint at rest: a start far from a posed scan."""
+
+    @torch.no_grad()
+    def _network(self, clouds):
+        p = super()._network(clouds)
+        p["local_rotmats"] = torch.eye(3).expand_as(p["local_rotmats"]).clone()
+        return p
+
+
+@pytest.mark.parametrize("second_is_truth", [True, False])
+def test_second_start_is_kept_when_it_explains_the_scan_better(tiny_ckpt, body, second_is_truth):
+    """Two starts, one the perturbed truth and one every joint at rest: whichever network gives the truth,
+    the fit kept is the one refined from it, and the scores say why."""
+    s = synthetic_scan(body, "test_ood", 2, 5000, offset=0.0)
+    kind = _RestPoseFitter if second_is_truth else OracleFitter
+    f = kind(ckpt=tiny_ckpt, device="cpu", anny=False, check=False, crossing=False)
+    assert f.second is None  # the tiny checkpoint's body is not the all-ages one: no second start by default
+    f.truth = s
+    f.second, f.second_name = _StandInSecond(f, rest=not second_is_truth), "other"
+    res = f.fit_points(s["points"])
+    start = res.start_hypothesis
+    want = "other" if second_is_truth else "network"
+    assert start["picked"] == want, start
+    assert start["scores"][want] < start["scores"]["network" if second_is_truth else "other"]
+    v2v = np.linalg.norm(res.vertices - s["vertices"], axis=1).mean() * 100
+    assert v2v < FIT_BOUND_CM
+
+
+def test_second_start_that_does_not_exist_is_named(tiny_ckpt, tmp_path):
+    missing = tmp_path / "nowhere.ckpt"
+    with pytest.raises((FileNotFoundError, ValueError), match="nowhere.ckpt"):
+        Fitter(ckpt=tiny_ckpt, device="cpu", anny=False, second_start=missing)

@@ -34,6 +34,8 @@ from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_
 #: written); ``refused`` (an uncertain fit refused by ``strict``: nothing written); ``error`` (bad input);
 #: ``skipped`` (outputs exist).
 STATUSES = ("ok", "uncertain", "not_single_body", "refused", "error", "skipped")
+#: the second start of a model on the all-ages body (:class:`Fitter`'s ``second_start``)
+SECOND_START = "anny22"
 #: Statuses whose outputs are written.
 WRITTEN_STATUSES = ("ok", "uncertain")
 #: A part is *seen* when at least this share of the fitted points is predicted on it...
@@ -63,7 +65,9 @@ class FitResult:
     predicted on each part, ``parts_seen [22]`` whether that is enough to call the part seen
     (:data:`MIN_PART_SHARE` of the points, at least :data:`MIN_PART_POINTS`). ``start_hypothesis``: for a
     refined partial scan, the refinement's start (:func:`arteq.fit.partial.pick_starts`'s info: ``picked``
-    ``network`` / ``untwisted`` / ``turned <deg>``, the parts untwisted, every start's score).
+    ``network`` / ``untwisted`` / ``turned <deg>``, the parts untwisted, every start's score); for a full
+    scan refined from a second start too (``Fitter(second_start=...)``), ``picked`` (``network`` or the
+    second model's name) and both fits' surface scores (cm).
     ``crossing``: for a full scan that tried swapped limb pairs (:mod:`arteq.fit.crossing`), the fit's
     score, each pair's score (cm) and the pair taken (``""``: none); None when none was tried.
     """
@@ -104,7 +108,7 @@ class FitResult:
     one_sidedness: float | None = None
     part_points: np.ndarray | None = None
     parts_seen: np.ndarray | None = None
-    start_hypothesis: dict | None = None  # partial scans: the refinement's start (fit.partial.pick_starts)
+    start_hypothesis: dict | None = None  # the refinement's start: partial scans' or the second start's pick
     crossing: dict | None = None  # full scans: swapped limb pairs tried (fit.crossing.try_swaps)
 
     def seen_names(self, seen: bool = True) -> list[str]:
@@ -194,6 +198,7 @@ class FitResult:
             "betas": [round(float(b), 4) for b in self.betas] if self.betas is not None else None,
             "quality": q,
             "clutter_removed": self.clean.counts if self.clean is not None else None,
+            "start": self.start_hypothesis,
             "crossing": self.crossing,
             "anny": json_section(self.anny, self.anny_note),
             "seconds": {k: round(v, 3) for k, v in self.timings.items()},
@@ -218,6 +223,7 @@ class FitResult:
             "scan_mode": self.scan_mode,
             "parts_seen": int(self.parts_seen.sum()) if self.parts_seen is not None else None,
             "parts_unseen": " ".join(self.seen_names(False)),
+            "start": (self.start_hypothesis or {}).get("picked", ""),
             "crossing": (self.crossing or {}).get("taken", ""),
             **{
                 f"removed_{k}": (self.clean.counts[k] if self.clean is not None else None)
@@ -368,6 +374,12 @@ class Fitter:
             :class:`arteq.fit.crossing.CrossingConfig`), a ``CrossingConfig``, or ``False``: a refined fit
             the check doubts, or one with a left / right pair of limb segments close together, is refitted
             with each pair swapped and the swap kept when it explains the scan better.
+        second_start: a second network whose pose starts a second refinement of every full scan; the fit
+            that explains the scan better (:func:`arteq.fit.crossing.surface_score`) is kept
+            (experiments/fitting/second_start.md). ``None`` (default): :data:`SECOND_START` (the research
+            model ``anny22``, everyday adults, more precise in its poses) for a model on the all-ages body,
+            none otherwise; a checkpoint path or shipped name; ``False``: none. It lends its local rotations
+            and part probabilities; the shape stays this model's, the translation is placed for it.
     """
 
     def __init__(
@@ -388,6 +400,7 @@ class Fitter:
         view_dir: np.ndarray | list[float] | None = None,
         hypotheses: Any = True,
         crossing: CrossingConfig | bool = True,
+        second_start: str | Path | bool | None = None,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
 
@@ -436,6 +449,7 @@ class Fitter:
         self.faces = self.body.faces.cpu().numpy()
         self.vertex_parts = self.body.part_labels.cpu().numpy()
         self.subset = body_tables(self.body, self.refine_config.m2s_vertices).m2s_subset.cpu().numpy()
+        self.second, self.second_name = self._second_network(second_start)
         self.anny_export, self.anny_note = None, "off (anny=False)"
         if anny is not False:
             from arteq.fit.anny_params import AnnyExport, AnnyUnavailable
@@ -447,6 +461,31 @@ class Fitter:
                 if anny:
                     raise
                 self.anny_note = f"off: {exc}"
+
+    def _second_network(self, spec: str | Path | bool | None) -> tuple[Any, str | None]:
+        """The second start's network (:class:`FitNetwork`) and name, or ``(None, None)``; see the class
+        docstring."""
+        from arteq.pretrained import resolve_checkpoint
+
+        if spec is False or (spec is None and getattr(self.body, "name", "") != "anny_allages"):
+            return None, None
+        path = resolve_checkpoint(SECOND_START if spec is None or spec is True else spec)
+        if path.resolve() == self.ckpt_path.resolve():
+            return None, None  # the model itself: nothing to add
+        try:
+            net = load_network(path)
+        except Exception as exc:  # noqa: BLE001 - name the file whatever went wrong
+            raise ValueError(
+                f"second_start {path}: cannot load the checkpoint ({type(exc).__name__}: {exc})"
+            ) from exc
+        own, other = self.module.net.num_parts, net.net.num_parts
+        pa, pb = net.body.parents.cpu(), self.body.parents.cpu()
+        if other != own or pa.shape != pb.shape or not torch.equal(pa, pb):
+            raise ValueError(
+                f"second_start {path}: its network has {other} parts on a {len(pa)}-joint skeleton, this "
+                f"model {own} on {len(pb)} (or other parents): the pose cannot be carried over"
+            )
+        return net.eval().to(self.device), path.stem
 
     # ------------------------------------------------------------------ core (metres)
     def prepare(
@@ -518,7 +557,9 @@ class Fitter:
         pred = self._network(net_in)
         probs_net = pred["part_probs"].float().cpu().numpy()  # (waits for a GPU)
         trees = [cKDTree(p) for p in net_in]
-        probs_ref = np.stack([probs_net[i][trees[i].query(ref_in[i])[1]] for i in range(len(items))])
+        near = [trees[i].query(ref_in[i])[1] for i in range(len(items))]  # each point's network point
+        probs_ref = np.stack([probs_net[i][near[i]] for i in range(len(items))])
+        second = self._second_starts(net_in, near, pred) if self.refine and self.second is not None else None
         t_net = time.perf_counter() - t0
         init = {"local_rotmats": pred["local_rotmats"], "betas": pred["betas"], "transl": pred["transl"]}
         t1 = time.perf_counter()
@@ -537,16 +578,30 @@ class Fitter:
                 views = [(m["camera"], m["view_dir"]) if m["partial"] else None for m in modes]
                 incidence = body_tables(self.body, self.refine_config.m2s_vertices).incidence
                 visible = visibility_function(self.body.faces, views, incidence)
+            rows = [i for i, m in enumerate(modes) if not m["partial"]] if second is not None else []
+            starts, probs_all, points_all = init, probs_fit, ref_in
+            if rows:  # the second starts of the full scans refined in the same batch, after the others
+                starts = {k: torch.cat([init[k], second["init"][k][rows].to(init[k].dtype)]) for k in init}
+                probs_all = np.concatenate([probs_fit, second["probs"][rows]])
+                points_all = ref_in + [ref_in[i] for i in rows]
+                if visible is not None:
+                    views = views + [None] * len(rows)
+                    visible = visibility_function(self.body.faces, views, incidence)
             out = refine(
                 self.body,
-                torch.as_tensor(np.stack(ref_in), dtype=dtype, device=self.device),
-                torch.as_tensor(probs_fit, dtype=dtype, device=self.device),
-                init,
+                torch.as_tensor(np.stack(points_all), dtype=dtype, device=self.device),
+                torch.as_tensor(probs_all, dtype=dtype, device=self.device),
+                starts,
                 self.refine_config,
                 m2s_visible=visible,
             )
-            local, betas, transl = out.local_rotmats, out.betas, out.transl
-            verts, joints, grot = out.vertices, out.joints, out.global_rotmats
+            n = len(items)
+            local, betas, transl = out.local_rotmats[:n], out.betas[:n], out.transl[:n]
+            verts, joints, grot = out.vertices[:n], out.joints[:n], out.global_rotmats[:n]
+            if rows:
+                probs_fit = self._keep_better(ref_in, rows, out, probs_fit, second["probs"], modes)
+                local, betas, transl = out.local_rotmats[:n], out.betas[:n], out.transl[:n]
+                verts, joints, grot = out.vertices[:n], out.joints[:n], out.global_rotmats[:n]
         else:
             local, betas, transl = init["local_rotmats"], init["betas"], init["transl"]
             with torch.no_grad():
@@ -559,7 +614,7 @@ class Fitter:
         if self.refine and self.crossing is not None:
             fit = {"local_rotmats": local, "betas": betas, "transl": transl, "vertices": verts,
                    "joints": joints, "global_rotmats": grot}  # fmt: skip
-            crossing, t_cross, checked = self._crossings(ref_in, probs_ref, modes, fit)
+            crossing, t_cross, checked = self._crossings(ref_in, probs_fit, modes, fit)
             local, betas, transl = fit["local_rotmats"], fit["betas"], fit["transl"]
             verts, joints, grot = fit["vertices"], fit["joints"], fit["global_rotmats"]
         import roma
@@ -665,7 +720,7 @@ class Fitter:
                     scan_mode_reason=mode["reason"],
                     view_dir=mode["view_dir"],
                     one_sidedness=mode["score"],
-                    start_hypothesis=mode.get("hypothesis"),
+                    start_hypothesis=mode.get("hypothesis") or mode.get("second_start"),
                     crossing=crossing[i],
                     part_points=counts[i],
                     parts_seen=counts[i] >= max(MIN_PART_POINTS, MIN_PART_SHARE * self.points),
@@ -684,6 +739,63 @@ class Fitter:
                     r.anny_note = f"failed: {type(exc).__name__}: {exc}"
                     r.warnings.append(f"Anny export {r.anny_note}")
         return results
+
+    @torch.no_grad()
+    def _second_starts(
+        self, net_in: list[np.ndarray], near: list[np.ndarray], pred: dict[str, torch.Tensor]
+    ) -> dict[str, Any]:
+        """The second network's starts for every scan: its local rotations, this model's betas, the
+        translation placed for that body with its part weights, and its part probabilities at the
+        refinement's points (``near``: each one's network point)."""
+        from arteq.models.placement import estimate_translation
+
+        x = torch.as_tensor(np.stack(net_in), dtype=torch.float32, device=self.device)
+        other = self.second.net(x)
+        local = other["local_rotmats"].float()
+        betas = pred["betas"].float()
+        posed = self.body(
+            betas=betas.to(self.body.v_template.dtype), pose=local.to(self.body.v_template.dtype)
+        )
+        transl = estimate_translation(
+            posed.vertices.float(), self.module.centroid_matrix, x, other["pool_weights"]
+        )
+        probs = other["part_probs"].float().cpu().numpy()
+        return {
+            "init": {"local_rotmats": local, "betas": betas, "transl": transl.to(pred["transl"].dtype)},
+            "probs": np.stack([probs[i][near[i]] for i in range(len(net_in))]),
+        }
+
+    def _keep_better(
+        self, ref_in: list[np.ndarray], rows: list[int], out: Any, probs_fit: np.ndarray,
+        probs_second: np.ndarray, modes: list[dict[str, Any]],
+    ) -> np.ndarray:  # fmt: skip
+        """Per full scan ``rows[j]``, the refinement from the second start (``out``'s row
+        ``len(ref_in) + j``) replaces the network's (row ``rows[j]``) when its surface score is lower;
+        ``modes`` record both scores. Returns the part probabilities of the starts kept."""
+        from arteq.fit.crossing import surface_score
+
+        n = len(ref_in)
+        verts = out.vertices.detach().double().cpu().numpy()
+        probs_fit = probs_fit.copy()
+        name = self.second_name
+        for j, i in enumerate(rows):
+            own = surface_score(ref_in[i], verts[i], self.subset)
+            alt = surface_score(ref_in[i], verts[n + j], self.subset)
+            take = alt < own
+            scores = {"network": round(own, 3), name: round(alt, 3)}
+            modes[i]["second_start"] = {"picked": name if take else "network", "scores": scores}
+            if take:
+                for t in (
+                    out.local_rotmats,
+                    out.betas,
+                    out.transl,
+                    out.vertices,
+                    out.joints,
+                    out.global_rotmats,
+                ):
+                    t[i] = t[n + j]
+                probs_fit[i] = probs_second[i]
+        return probs_fit
 
     def _crossings(
         self, ref_in: list[np.ndarray], probs_ref: np.ndarray, modes: list[dict[str, Any]], fit: dict

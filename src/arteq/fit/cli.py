@@ -57,6 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--crossing", action=argparse.BooleanOptionalAction, default=True,
                     help="full scans: refit a doubtful fit with left / right limb pairs swapped, keep a "
                     "swap that explains the scan better (crossed arms; default: on)")  # fmt: skip
+    ap.add_argument("--second-start", default=None, metavar="MODEL",
+                    help="full scans: also refine from this model's pose and keep the fit that explains the "
+                    "scan better (default: anny22 for a model on the all-ages body)")  # fmt: skip
+    ap.add_argument("--no-second-start", dest="second_start", action="store_false",
+                    help="refine from the network's own pose only (faster)")  # fmt: skip
     ap.add_argument("--partial", action=argparse.BooleanOptionalAction, default=None,
                     help="scans are one camera's view (--partial) or full surfaces (--no-partial); default: "
                     "detected per scan, a depth image is partial")  # fmt: skip
@@ -99,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         fitter = Fitter(ckpt=args.ckpt, device=args.device, refine=args.refine, points=args.points,
                         refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny,
                         strict=args.strict, partial=args.partial, view_dir=args.view_dir,
-                        crossing=args.crossing)  # fmt: skip
+                        crossing=args.crossing, second_start=args.second_start)  # fmt: skip
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"arteq-fit: {exc}", file=sys.stderr)
         return 2
