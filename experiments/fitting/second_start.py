@@ -58,8 +58,8 @@ def main() -> None:
             return {**own, "local_rotmats": other["local_rotmats"], "part_probs": other["part_probs"],
                     "transl": transl}  # fmt: skip
 
-    scan = Fitter(device="cpu", anny=False)
-    second = SecondStart(device="cpu", anny=False)
+    scan = Fitter(device="cpu", anny=False, second_start=False)  # each start on its own
+    second = SecondStart(device="cpu", anny=False, second_start=False)
     subset = scan.subset
     records = []
     for it in labelled_set(a.seed):

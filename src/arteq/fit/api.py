@@ -36,8 +36,6 @@ from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_
 STATUSES = ("ok", "uncertain", "not_single_body", "refused", "error", "skipped")
 #: the second start of a model on the all-ages body (:class:`Fitter`'s ``second_start``)
 SECOND_START = "anny22"
-#: the brief refinement that picks between the network's start and the second start (iterations, points)
-BRIEF_ITERS, BRIEF_POINTS = 8, 2000
 #: Statuses whose outputs are written.
 WRITTEN_STATUSES = ("ok", "uncertain")
 #: A part is *seen* when at least this share of the fitted points is predicted on it...
@@ -376,13 +374,12 @@ class Fitter:
             :class:`arteq.fit.crossing.CrossingConfig`), a ``CrossingConfig``, or ``False``: a refined fit
             the check doubts, or one with a left / right pair of limb segments close together, is refitted
             with each pair swapped and the swap kept when it explains the scan better.
-        second_start: a second network whose pose is a second start for every full scan; each start gets a
-            brief refinement and the one whose brief fit explains the scan better
-            (:func:`arteq.fit.crossing.surface_score`) is refined (experiments/fitting/second_start.md).
-            ``None`` (default): :data:`SECOND_START` (the research model ``anny22``, everyday adults, more
-            precise in its poses) for a model on the all-ages body, none otherwise; a checkpoint path or
-            shipped name; ``False``: none. It lends its local rotations and part probabilities; the shape
-            stays this model's, the translation is placed for it.
+        second_start: a second network whose pose starts a second refinement of every full scan; the fit
+            that explains the scan better (:func:`arteq.fit.crossing.surface_score`) is kept
+            (experiments/fitting/second_start.md). ``None`` (default): :data:`SECOND_START` (the research
+            model ``anny22``, everyday adults, more precise in its poses) for a model on the all-ages body,
+            none otherwise; a checkpoint path or shipped name; ``False``: none. It lends its local rotations
+            and part probabilities; the shape stays this model's, the translation is placed for it.
     """
 
     def __init__(
@@ -582,18 +579,27 @@ class Fitter:
                 incidence = body_tables(self.body, self.refine_config.m2s_vertices).incidence
                 visible = visibility_function(self.body.faces, views, incidence)
             rows = [i for i, m in enumerate(modes) if not m["partial"]] if second is not None else []
-            if rows:
-                probs_fit = self._pick_second_starts(ref_in, rows, init, probs_fit, second, modes)
+            starts, probs_all, points_all = init, probs_fit, ref_in
+            if rows:  # the second starts of the full scans refined in the same batch, after the others
+                starts = {k: torch.cat([init[k], second["init"][k][rows].to(init[k].dtype)]) for k in init}
+                probs_all = np.concatenate([probs_fit, second["probs"][rows]])
+                points_all = ref_in + [ref_in[i] for i in rows]
+                if visible is not None:
+                    views = views + [None] * len(rows)
+                    visible = visibility_function(self.body.faces, views, incidence)
             out = refine(
                 self.body,
-                torch.as_tensor(np.stack(ref_in), dtype=dtype, device=self.device),
-                torch.as_tensor(probs_fit, dtype=dtype, device=self.device),
-                init,
+                torch.as_tensor(np.stack(points_all), dtype=dtype, device=self.device),
+                torch.as_tensor(probs_all, dtype=dtype, device=self.device),
+                starts,
                 self.refine_config,
                 m2s_visible=visible,
             )
-            local, betas, transl = out.local_rotmats, out.betas, out.transl
-            verts, joints, grot = out.vertices, out.joints, out.global_rotmats
+            if rows:  # the better of each full scan's two fits into its row
+                probs_fit = self._keep_better(ref_in, rows, out, probs_fit, second["probs"], modes)
+            n = len(items)
+            local, betas, transl = out.local_rotmats[:n], out.betas[:n], out.transl[:n]
+            verts, joints, grot = out.vertices[:n], out.joints[:n], out.global_rotmats[:n]
         else:
             local, betas, transl = init["local_rotmats"], init["betas"], init["transl"]
             with torch.no_grad():
@@ -757,50 +763,36 @@ class Fitter:
             "probs": np.stack([probs[i][near[i]] for i in range(len(net_in))]),
         }
 
-    def _pick_second_starts(
-        self, ref_in: list[np.ndarray], rows: list[int], init: dict[str, torch.Tensor], probs_fit: np.ndarray,
-        second: dict[str, Any], modes: list[dict[str, Any]],
+    def _keep_better(
+        self, ref_in: list[np.ndarray], rows: list[int], out: Any, probs_fit: np.ndarray,
+        probs_second: np.ndarray, modes: list[dict[str, Any]],
     ) -> np.ndarray:  # fmt: skip
-        """For each full scan ``rows[i]``, the network's start and the second start each get a brief
-        refinement (:data:`BRIEF_ITERS` iterations on :data:`BRIEF_POINTS` evenly strided points, no
-        searches); the start whose brief fit lies closer to the scan
-        (:func:`arteq.fit.crossing.surface_score`) is kept for the refinement: ``init``'s row replaced,
+        """Per full scan ``rows[j]``, the refinement from the second start (``out``'s row
+        ``len(ref_in) + j``) replaces the network's (row ``rows[j]``) when its surface score is lower;
         ``modes`` record both scores. Returns the part probabilities of the starts kept."""
-        import dataclasses
-
         from arteq.fit.crossing import surface_score
 
-        dtype = self.body.v_template.dtype
-        keys = ("local_rotmats", "betas", "transl")
-        pick = [
-            np.arange(len(ref_in[i]))[:: max(1, len(ref_in[i]) // BRIEF_POINTS)][:BRIEF_POINTS] for i in rows
-        ]
-        pts = [ref_in[i][p] for i, p in zip(rows, pick)]
-        probs = [probs_fit[i][p] for i, p in zip(rows, pick)] + [
-            second["probs"][i][p] for i, p in zip(rows, pick)
-        ]
-        starts = {k: torch.cat([init[k][rows], second["init"][k][rows].to(init[k].dtype)]) for k in keys}
-        cfg = dataclasses.replace(self.refine_config, iters=BRIEF_ITERS, twist_at=-1.0, swing_at=-1.0)
-        brief = refine(
-            self.body,
-            torch.as_tensor(np.stack(pts + pts), dtype=dtype, device=self.device),
-            torch.as_tensor(np.stack(probs), dtype=dtype, device=self.device),
-            starts,
-            cfg,
-        )
-        verts = brief.vertices.detach().double().cpu().numpy()
+        n = len(ref_in)
+        verts = out.vertices.detach().double().cpu().numpy()
         probs_fit = probs_fit.copy()
+        name = self.second_name
         for j, i in enumerate(rows):
-            own = surface_score(ref_in[i], verts[j], self.subset)
-            alt = surface_score(ref_in[i], verts[len(rows) + j], self.subset)
+            own = surface_score(ref_in[i], verts[i], self.subset)
+            alt = surface_score(ref_in[i], verts[n + j], self.subset)
             take = alt < own
-            scores = {"network": round(own, 3), self.second_name: round(alt, 3)}
-            modes[i]["second_start"] = {"picked": self.second_name if take else "network", "scores": scores}
-            if take:  # the start itself, not its brief refinement
-                for k in keys:
-                    init[k] = init[k].clone()
-                    init[k][i] = second["init"][k][i].to(init[k].dtype)
-                probs_fit[i] = second["probs"][i]
+            scores = {"network": round(own, 3), name: round(alt, 3)}
+            modes[i]["second_start"] = {"picked": name if take else "network", "scores": scores}
+            if take:
+                for t in (
+                    out.local_rotmats,
+                    out.betas,
+                    out.transl,
+                    out.vertices,
+                    out.joints,
+                    out.global_rotmats,
+                ):
+                    t[i] = t[n + j]
+                probs_fit[i] = probs_second[i]
         return probs_fit
 
     def _crossings(
