@@ -559,12 +559,19 @@ class Fitter:
         trees = [cKDTree(p) for p in net_in]
         near = [trees[i].query(ref_in[i])[1] for i in range(len(items))]  # each point's network point
         probs_ref = np.stack([probs_net[i][near[i]] for i in range(len(items))])
-        second = self._second_starts(net_in, near, pred) if self.refine and self.second is not None else None
         t_net = time.perf_counter() - t0
         init = {"local_rotmats": pred["local_rotmats"], "betas": pred["betas"], "transl": pred["transl"]}
         t1 = time.perf_counter()
         modes = self._scan_modes(items, net_in, ref_in, pred, init)
         t_modes = time.perf_counter() - t1
+        rows, second = [], None  # the full scans that also start from the second network, and its starts
+        if self.refine and self.second is not None:
+            rows = [i for i, m in enumerate(modes) if not m["partial"]]
+        if rows:
+            t1 = time.perf_counter()
+            second = self._second_starts([net_in[i] for i in rows], [near[i] for i in rows],
+                                         {k: pred[k][rows] for k in ("betas", "transl")})  # fmt: skip
+            t_net += time.perf_counter() - t1
         t1 = time.perf_counter()
         dtype = self.body.v_template.dtype
         probs_fit = probs_ref  # the refinement's labels; what is reported stays the network's
@@ -578,11 +585,10 @@ class Fitter:
                 views = [(m["camera"], m["view_dir"]) if m["partial"] else None for m in modes]
                 incidence = body_tables(self.body, self.refine_config.m2s_vertices).incidence
                 visible = visibility_function(self.body.faces, views, incidence)
-            rows = [i for i, m in enumerate(modes) if not m["partial"]] if second is not None else []
             starts, probs_all, points_all = init, probs_fit, ref_in
             if rows:  # the second starts of the full scans refined in the same batch, after the others
-                starts = {k: torch.cat([init[k], second["init"][k][rows].to(init[k].dtype)]) for k in init}
-                probs_all = np.concatenate([probs_fit, second["probs"][rows]])
+                starts = {k: torch.cat([init[k], second["init"][k].to(init[k].dtype)]) for k in init}
+                probs_all = np.concatenate([probs_fit, second["probs"]])
                 points_all = ref_in + [ref_in[i] for i in rows]
                 if visible is not None:
                     views = views + [None] * len(rows)
@@ -742,9 +748,10 @@ class Fitter:
     def _second_starts(
         self, net_in: list[np.ndarray], near: list[np.ndarray], pred: dict[str, torch.Tensor]
     ) -> dict[str, Any]:
-        """The second network's starts for every scan: its local rotations, this model's betas, the
-        translation placed for that body with its part weights, and its part probabilities at the
-        refinement's points (``near``: each one's network point)."""
+        """The second network's starts for the scans given (``pred``: this model's ``betas`` and ``transl``
+        of those scans): its local rotations, this model's betas, the translation placed for that body with
+        its part weights, and its part probabilities at the refinement's points (``near``: each one's
+        network point)."""
         from arteq.models.placement import estimate_translation
 
         x = torch.as_tensor(np.stack(net_in), dtype=torch.float32, device=self.device)
@@ -767,9 +774,10 @@ class Fitter:
         self, ref_in: list[np.ndarray], rows: list[int], out: Any, probs_fit: np.ndarray,
         probs_second: np.ndarray, modes: list[dict[str, Any]],
     ) -> np.ndarray:  # fmt: skip
-        """Per full scan ``rows[j]``, the refinement from the second start (``out``'s row
-        ``len(ref_in) + j``) replaces the network's (row ``rows[j]``) when its surface score is lower;
-        ``modes`` record both scores. Returns the part probabilities of the starts kept."""
+        """Per full scan ``rows[j]``, the refinement from the second start (``out``'s row ``len(ref_in) + j``,
+        its part probabilities ``probs_second[j]``) replaces the network's (row ``rows[j]``) when its
+        surface score is lower; ``modes`` record both scores. Returns the part probabilities of the starts
+        kept."""
         from arteq.fit.crossing import surface_score
 
         n = len(ref_in)
@@ -792,7 +800,7 @@ class Fitter:
                     out.global_rotmats,
                 ):
                     t[i] = t[n + j]
-                probs_fit[i] = probs_second[i]
+                probs_fit[i] = probs_second[j]
         return probs_fit
 
     def _crossings(
