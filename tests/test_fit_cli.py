@@ -20,10 +20,11 @@ import roma
 import torch
 import trimesh
 
-from arteq.fit.api import Fitter
+from arteq.fit.api import SECOND_START_STOPS, Fitter
 from arteq.fit.cli import main as cli_main
 from arteq.fit.demo import synthetic_scan
 from arteq.fit.files import fit_files
+from arteq.fit.refine import refine_iteration
 from fit_helpers import CentreKeepingFitter, write_tiny_checkpoint
 
 
@@ -556,6 +557,8 @@ def test_second_start_is_kept_when_it_explains_the_scan_better(tiny_ckpt, body, 
     want = "other" if second_is_truth else "network"
     assert start["picked"] == want, start
     assert start["scores"][want] < start["scores"]["network" if second_is_truth else "other"]
+    # far worse from the start, the rest pose stops being refined at the first comparison
+    assert start["iteration"] == refine_iteration(f.refine_config, SECOND_START_STOPS[0][0]), start
     v2v = np.linalg.norm(res.vertices - s["vertices"], axis=1).mean() * 100
     assert v2v < FIT_BOUND_CM
 

@@ -103,8 +103,11 @@ def test_a_crossing_is_found_and_a_good_fit_left_alone(body, scene):
     after = np.linalg.norm(out[0]["vertices"].double().numpy() - crossed["vertices"], axis=1).mean() * 100
     assert after < 1.0, (before, after)
     assert out[0]["tried"]["forearms"] < min(out[0]["score"], out[0]["tried"]["none"])
-    # the right fit: the swap explains the scan worse than the fit refined again ("none")
+    assert "stopped" not in out[0]
+    # the right fit: the swap explains the scan worse than the fit refined again ("none"), already where
+    # swaps that lose stop being refined
     assert out[1]["taken"] in ("", "none") and out[1]["tried"]["forearms"] > out[1]["tried"]["none"], out[1]
+    assert out[1]["stopped"] == {"forearms": CrossingConfig().stop_at}
     assert surface_score(clouds[1], fit["vertices"], subset) == pytest.approx(out[1]["score"])
 
 

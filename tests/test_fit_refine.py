@@ -19,6 +19,7 @@ from arteq.fit.refine import (
     body_tables,
     branch_parts,
     refine,
+    refine_iteration,
     sphere_directions,
     swing_search,
     turn_joint_ids,
@@ -92,6 +93,60 @@ def test_batched_refinement_matches_one_by_one(body):
     for j in range(2):
         one = refine(body, pts[j : j + 1], probs[j : j + 1], inits[j], cfg)
         torch.testing.assert_close(one.vertices[0], batch.vertices[j], atol=2e-4, rtol=0)
+
+
+@pytest.mark.parametrize("backend", ["kdtree", "torch"])
+def test_stopped_rows_keep_their_fit_and_the_others_go_on_unchanged(body, backend):
+    """``stop``: a row stopped at a re-matching iteration keeps its fit of that iteration (what the
+    callback saw there in a run without ``stop``), the rows still refined end as in that run, in their
+    places; a model -> scan visibility function still sees the whole batch."""
+    rng = np.random.default_rng(5)
+    scans = [synthetic_scan(body, "test_ood", i, 800, offset=0.0) for i in range(3)]
+    cfg = RefineConfig(iters=12, backend=backend, swing_at=-1)
+    at = refine_iteration(cfg, 0.5)
+    assert at == 5  # the first free iteration (the gated phase: 0.4 of 12, rounded): matches renewed
+    pts = torch.stack([torch.as_tensor(s["points"], dtype=torch.float32) for s in scans])
+    inits = [perturbed_start(s, 0.0, rng) for s in scans]
+    init = {k: torch.cat([i[k] for i in inits]) for k in inits[0]}
+    probs = torch.stack([noisy_probs(s["labels"], rng) for s in scans])
+    seen = {}
+    full = refine(body, pts, probs, init, cfg, callback=lambda it, v: seen.setdefault(it, v.clone()))
+    calls, sizes = [], []
+
+    def stop(it, rows, verts):
+        calls.append((it, rows.tolist()))
+        return rows == 1
+
+    def everyone(verts):
+        sizes.append(verts.shape[0])
+        return torch.ones(verts.shape[:2], dtype=torch.bool)
+
+    out = refine(body, pts, probs, init, cfg, stop=stop, stop_at=(at,), m2s_visible=everyone)
+    assert calls == [(at, [0, 1, 2])]
+    assert set(sizes) == {3}
+    torch.testing.assert_close(out.vertices[1], seen[at][1], atol=1e-5, rtol=0)
+    for j in (0, 2):
+        torch.testing.assert_close(out.vertices[j], full.vertices[j], atol=2e-4, rtol=0)
+    assert v2v_cm(out.vertices[1], full.vertices[1]) > 0.05  # it did stop
+    # stopping every row, or none, changes nothing
+    for rule in (lambda it, r, v: torch.ones(len(r), dtype=torch.bool), lambda it, r, v: r < 0):
+        same = refine(body, pts, probs, init, cfg, stop=rule, stop_at=(at,))
+        torch.testing.assert_close(same.vertices, full.vertices, atol=2e-4, rtol=0)
+
+
+def test_kdtree_matches_are_the_same_on_a_thread_pool(body):
+    """``workers=2`` spreads a batch's scans over two threads: the same matches as one by one."""
+    rng = np.random.default_rng(1)
+    scans = [synthetic_scan(body, "test_ood", i, 600, offset=0.0) for i in range(3)]
+    pts = torch.stack([torch.as_tensor(s["points"], dtype=torch.float32) for s in scans])
+    allowed = allowed_parts(torch.stack([noisy_probs(s["labels"], rng, wrong=0.4) for s in scans]))
+    verts = torch.stack([torch.as_tensor(s["vertices"], dtype=torch.float32) for s in scans]) + 0.01
+    one, two = (_KDTreeMatcher(pts, allowed, body.part_labels, w) for w in (1, 2))
+    for gated in (True, False):
+        assert torch.equal(one.scan_to_model(verts, gated), two.scan_to_model(verts, gated))
+    assert torch.equal(one.model_to_scan(verts[:, :300]), two.model_to_scan(verts[:, :300]))
+    assert torch.equal(one.rows(np.array([True, False, True])).model_to_scan(verts[[0, 2], :300]),
+                       one.model_to_scan(verts[:, :300])[[0, 2]])  # fmt: skip
 
 
 def test_kdtree_and_torch_matchers_agree(body):
@@ -253,6 +308,15 @@ def test_swing_search_points_a_lost_forearm_back(body):
     after = v2v_cm(moved, s["vertices"][arm])
     assert before > 15 and after < 3.0, (before, after)
     assert np.array_equal(turns[0, re_], np.eye(3))
+    # two scans (the lost arm and the truth) on two threads: the same turns, the truth's untouched
+    _, truth = turned_truth(body, s, 0.0, {})
+    both = swing_search(
+        [s["points"]] * 2, torch.cat([posed.vertices, truth.vertices]).double().numpy(),
+        torch.cat([posed.joints, truth.joints]).double().numpy(), body.part_labels.numpy(),
+        {j: tables.branch_subset(j).numpy() for j in (le, re_)},
+        {j: tables.branch_fraction(j) for j in (le, re_)}, workers=2,
+    )  # fmt: skip
+    assert np.array_equal(both[0], turns[0]) and np.array_equal(both[1], np.tile(np.eye(3), (22, 1, 1)))
 
 
 def test_sphere_directions_cover_the_sphere():

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,7 +27,7 @@ import torch
 from arteq.fit.clean import CleanConfig, CleanResult, clean_scan
 from arteq.fit.crossing import CrossingConfig, pairs_to_try, try_swaps
 from arteq.fit.quality import REFUSE_FLAGS, QualityThresholds, describe_flags, fit_quality, verdict
-from arteq.fit.refine import RefineConfig, body_tables, refine
+from arteq.fit.refine import RefineConfig, body_tables, refine, refine_iteration
 from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_points
 
 #: Status values of a :class:`FitResult`: ``ok``; ``uncertain`` (a body, but the check doubts the fit:
@@ -36,6 +37,11 @@ from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_
 STATUSES = ("ok", "uncertain", "not_single_body", "refused", "error", "skipped")
 #: the second start of a model on the all-ages body (:class:`Fitter`'s ``second_start``)
 SECOND_START = "anny22"
+#: When the two starts of a scan stop being refined together: at each ``(fraction of the iterations,
+#: margin)``, the start whose surface score exceeds the other's by more than the margin stops there
+#: (at 0.6 the worse one always does), so most scans refine one start for most of the iterations
+#: (experiments/fitting/stops.md).
+SECOND_START_STOPS = ((0.2, 0.10), (0.4, 0.02), (0.6, 0.0))
 #: Statuses whose outputs are written.
 WRITTEN_STATUSES = ("ok", "uncertain")
 #: A part is *seen* when at least this share of the fitted points is predicted on it...
@@ -67,9 +73,11 @@ class FitResult:
     refined partial scan, the refinement's start (:func:`arteq.fit.partial.pick_starts`'s info: ``picked``
     ``network`` / ``untwisted`` / ``turned <deg>``, the parts untwisted, every start's score); for a full
     scan refined from a second start too (``Fitter(second_start=...)``), ``picked`` (``network`` or the
-    second model's name) and both fits' surface scores (cm).
+    second model's name), both starts' surface scores (cm) and the ``iteration`` where they were compared
+    (the worse one stopped there; the refinement's count: both ran to the end).
     ``crossing``: for a full scan that tried swapped limb pairs (:mod:`arteq.fit.crossing`), the fit's
-    score, each pair's score (cm) and the pair taken (``""``: none); None when none was tried.
+    score, each pair's score (cm; where it stopped for those in ``stopped``) and the pair taken (``""``:
+    none); None when none was tried.
     """
 
     name: str
@@ -375,8 +383,9 @@ class Fitter:
             the check doubts, or one with a left / right pair of limb segments close together, is refitted
             with each pair swapped and the swap kept when it explains the scan better.
         second_start: a second network whose pose starts a second refinement of every full scan; the fit
-            that explains the scan better (:func:`arteq.fit.crossing.surface_score`) is kept
-            (experiments/fitting/second_start.md). ``None`` (default): :data:`SECOND_START` (the research
+            that explains the scan better (:func:`arteq.fit.crossing.surface_score`) is kept, the worse
+            start stopping as soon as it is clearly worse (:data:`SECOND_START_STOPS`;
+            experiments/fitting/second_start.md). ``None`` (default): :data:`SECOND_START` (the research
             model ``anny22``, everyday adults, more precise in its poses) for a model on the all-ages body,
             none otherwise; a checkpoint path or shipped name; ``False``: none. It lends its local rotations
             and part probabilities; the shape stays this model's, the translation is placed for it.
@@ -593,6 +602,9 @@ class Fitter:
                 if visible is not None:
                     views = views + [None] * len(rows)
                     visible = visibility_function(self.body.faces, views, incidence)
+            stop, stop_at, decided = None, (), {}
+            if rows:  # the worse start of a scan stops early
+                stop, stop_at, decided = self._start_stopper(ref_in, rows)
             out = refine(
                 self.body,
                 torch.as_tensor(np.stack(points_all), dtype=dtype, device=self.device),
@@ -600,9 +612,11 @@ class Fitter:
                 starts,
                 self.refine_config,
                 m2s_visible=visible,
+                stop=stop,
+                stop_at=stop_at,
             )
             if rows:  # the better of each full scan's two fits into its row
-                probs_fit = self._keep_better(ref_in, rows, out, probs_fit, second["probs"], modes)
+                probs_fit = self._keep_better(ref_in, rows, out, probs_fit, second["probs"], modes, decided)
             n = len(items)
             local, betas, transl = out.local_rotmats[:n], out.betas[:n], out.transl[:n]
             verts, joints, grot = out.vertices[:n], out.joints[:n], out.global_rotmats[:n]
@@ -770,14 +784,49 @@ class Fitter:
             "probs": np.stack([probs[i][near[i]] for i in range(len(net_in))]),
         }
 
+    def _start_stopper(
+        self, ref_in: list[np.ndarray], rows: list[int]
+    ) -> tuple[Callable, tuple[int, ...], dict[int, dict[str, Any]]]:
+        """For :func:`refine`'s ``stop``: the batch holds every scan (rows ``0..n-1``) and then the second
+        starts of the scans ``rows`` (row ``n + j`` for ``rows[j]``). At the iterations of
+        :data:`SECOND_START_STOPS` the start whose surface score exceeds the other's by the margin stops.
+        Returns ``stop``, ``stop_at`` and the decisions it fills (scan -> the start kept, both scores, the
+        iteration)."""
+        from arteq.fit.crossing import surface_score
+
+        n = len(ref_in)
+        pairs = {i: n + j for j, i in enumerate(rows)}
+        margin = {refine_iteration(self.refine_config, f): m for f, m in SECOND_START_STOPS}
+        margin.pop(-1, None)
+        decided: dict[int, dict[str, Any]] = {}
+
+        def stop(it: int, alive: torch.Tensor, verts: torch.Tensor) -> torch.Tensor:
+            where = {int(r): a for a, r in enumerate(alive)}
+            out = torch.zeros(len(alive), dtype=torch.bool)
+            for i, k in pairs.items():
+                if i in decided or i not in where or k not in where:
+                    continue
+                own, alt = (
+                    surface_score(ref_in[i], verts[where[r]].detach().double().cpu().numpy(), self.subset)
+                    for r in (i, k)
+                )
+                if max(own, alt) > min(own, alt) * (1 + margin[it]) or margin[it] == 0:
+                    take = alt < own
+                    out[where[i if take else k]] = True
+                    decided[i] = {"take": take, "own": own, "alt": alt, "iteration": it}
+            return out
+
+        return stop, tuple(sorted(margin)), decided
+
     def _keep_better(
         self, ref_in: list[np.ndarray], rows: list[int], out: Any, probs_fit: np.ndarray,
-        probs_second: np.ndarray, modes: list[dict[str, Any]],
+        probs_second: np.ndarray, modes: list[dict[str, Any]], decided: dict[int, dict[str, Any]],
     ) -> np.ndarray:  # fmt: skip
         """Per full scan ``rows[j]``, the refinement from the second start (``out``'s row ``len(ref_in) + j``,
         its part probabilities ``probs_second[j]``) replaces the network's (row ``rows[j]``) when its
-        surface score is lower; ``modes`` record both scores. Returns the part probabilities of the starts
-        kept."""
+        surface score is lower, at the end or where ``decided`` (:meth:`_start_stopper`) says the other
+        stopped; ``modes`` record both scores and that iteration. Returns the part probabilities of the
+        starts kept."""
         from arteq.fit.crossing import surface_score
 
         n = len(ref_in)
@@ -785,11 +834,19 @@ class Fitter:
         probs_fit = probs_fit.copy()
         name = self.second_name
         for j, i in enumerate(rows):
-            own = surface_score(ref_in[i], verts[i], self.subset)
-            alt = surface_score(ref_in[i], verts[n + j], self.subset)
-            take = alt < own
+            if i in decided:
+                d = decided[i]
+                take, own, alt, at = d["take"], d["own"], d["alt"], d["iteration"]
+            else:
+                own = surface_score(ref_in[i], verts[i], self.subset)
+                alt = surface_score(ref_in[i], verts[n + j], self.subset)
+                take, at = alt < own, out.iterations
             scores = {"network": round(own, 3), name: round(alt, 3)}
-            modes[i]["second_start"] = {"picked": name if take else "network", "scores": scores}
+            modes[i]["second_start"] = {
+                "picked": name if take else "network",
+                "scores": scores,
+                "iteration": at,
+            }
             if take:
                 for t in (
                     out.local_rotmats,
@@ -838,7 +895,8 @@ class Fitter:
             if not tries[i]:
                 continue
             records[i] = {"score_cm": round(p["score"], 4), "tried_cm": {k: round(v, 4) for k, v in
-                          p["tried"].items()}, "taken": p["taken"], "first_doubt": doubtful[i]}  # fmt: skip
+                          p["tried"].items()}, "stopped": p.get("stopped", {}), "taken": p["taken"],
+                          "first_doubt": doubtful[i]}  # fmt: skip
             if p["taken"]:
                 checked[i] = None
                 for k in fit:

@@ -12,11 +12,13 @@ After the refinement, for a fit that the check doubts or whose two segments of a
 both segments are turned about their joints to point at the other side's segment end (:func:`swap_start`,
 the children follow), and the body is refined again from there without part gating (the network's sides
 are what is in doubt). The fit itself is refined again the same way (``none``), so that every candidate
-has had the same iterations. A swap is kept when its surface score (:func:`surface_score`, symmetric
-robust Chamfer in cm) is lower than ``none``'s by :attr:`CrossingConfig.min_gain` (relative), else
-``none`` is kept when it scores lower than the fit; nothing changes for a fit that is lost altogether
-(score above :attr:`CrossingConfig.max_score_cm`: every start is far off there and the score does not
-tell them apart). Measured in experiments/fitting/crossing.md.
+has had the same iterations; a swap that scores clearly above ``none`` after
+:attr:`CrossingConfig.stop_at` of them stops there and is not taken (none such won later on the measured
+sets). A swap is kept when its surface score (:func:`surface_score`, symmetric robust Chamfer in cm) is
+lower than ``none``'s by :attr:`CrossingConfig.min_gain` (relative), else ``none`` is kept when it scores
+lower than the fit; nothing changes for a fit that is lost altogether (score above
+:attr:`CrossingConfig.max_score_cm`: every start is far off there and the score does not tell them
+apart). Measured in experiments/fitting/crossing.md.
 """
 
 from __future__ import annotations
@@ -55,6 +57,10 @@ class CrossingConfig:
     min_gain: float = 0.03
     #: no swap for a fit scoring above this (cm): every start is far off there
     max_score_cm: float = 4.0
+    #: at this iteration (< 0: never) a swap scoring above the fit refined again (``none``) by more than
+    #: ``stop_margin`` (relative) stops and is not taken (experiments/fitting/stops.md)
+    stop_at: int = 8
+    stop_margin: float = 0.05
 
 
 def swap_start(local: np.ndarray, global_rot: np.ndarray, joints: np.ndarray, pair: str) -> np.ndarray:
@@ -124,8 +130,9 @@ def try_swaps(
     Returns:
         per scan ``{"tried": {pair or "none": score}, "score": the fit's score, "taken": the pair, "none"
         (the fit refined again) or "" (the fit kept), and unless "" "local_rotmats", "betas", "transl",
-        "vertices", "joints", "global_rotmats" (tensors of one scan)}``; with ``keep_all`` also
-        ``"all_vertices": {pair or "none": [V, 3]}`` of every start tried (for studies).
+        "vertices", "joints", "global_rotmats" (tensors of one scan)}``; ``"stopped": {pair: iteration}``
+        for the swaps that stopped at :attr:`CrossingConfig.stop_at` (their score there); with ``keep_all``
+        also ``"all_vertices": {pair or "none": [V, 3]}`` of every start tried (for studies).
     """
     from arteq.fit.refine import refine
 
@@ -163,12 +170,33 @@ def try_swaps(
         "transl": fit["transl"][idx].detach().to(device=device, dtype=dtype),
     }
     probs = torch.ones(len(rows), pts.shape[1], NUM_JOINTS, dtype=dtype, device=device)  # no part gating
-    res = refine(body, pts, probs, init, rc)
+    stopped: dict[int, float] = {}  # row -> its score where it stopped
+
+    def stop(it: int, alive: torch.Tensor, verts: torch.Tensor) -> torch.Tensor:
+        where = {int(r): a for a, r in enumerate(alive)}
+        score = {
+            r: surface_score(points[rows[r][0]], verts[a].detach().double().cpu().numpy(), subset)
+            for r, a in where.items()
+        }
+        out_rows = torch.zeros(len(alive), dtype=torch.bool)
+        for r, a in where.items():
+            i, pair = rows[r]
+            base = rows.index((i, "none"))
+            if pair != "none" and base in score and score[r] > score[base] * (1 + cfg.stop_margin):
+                out_rows[a] = True
+                stopped[r] = score[r]
+        return out_rows
+
+    res = refine(body, pts, probs, init, rc, stop=stop, stop_at=(cfg.stop_at,) if cfg.stop_at >= 0 else ())
     row_of: dict[tuple[int, str], int] = {}
     for r, (i, pair) in enumerate(rows):
-        out[i]["tried"][pair] = surface_score(
-            points[i], res.vertices[r].detach().double().cpu().numpy(), subset
-        )
+        if r in stopped:
+            out[i].setdefault("stopped", {})[pair] = cfg.stop_at
+            out[i]["tried"][pair] = stopped[r]
+        else:
+            out[i]["tried"][pair] = surface_score(
+                points[i], res.vertices[r].detach().double().cpu().numpy(), subset
+            )
         row_of[(i, pair)] = r
         if keep_all:
             out[i].setdefault("all_vertices", {})[pair] = res.vertices[r].detach()
@@ -176,7 +204,12 @@ def try_swaps(
         if "none" not in rec["tried"]:
             continue
         base = rec["tried"]["none"]
-        swaps = {p: v for p, v in rec["tried"].items() if p != "none" and v < (1 - cfg.min_gain) * base}
+        lost = rec.get("stopped", {})
+        swaps = {
+            p: v
+            for p, v in rec["tried"].items()
+            if p != "none" and p not in lost and v < (1 - cfg.min_gain) * base
+        }
         if swaps:
             pick = min(swaps, key=swaps.get)
         elif base < rec["score"]:

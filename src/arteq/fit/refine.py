@@ -33,11 +33,13 @@ renewals only the vertices the objective uses are posed), model -> scan matches 
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 import warnings
 import weakref
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -92,7 +94,8 @@ class RefineConfig:
     swing_min_gain: float = 1.0  # cm: a swing is kept when it lowers the branch's score by this much
     swing_max_score: float = 3.0  # cm: and when the swung branch scores at most this
     backend: str = "auto"  # auto | kdtree | torch
-    workers: int = 1
+    #: threads that share a batch's nearest-neighbour searches on CPU (0: torch's thread count)
+    workers: int = 0
 
     def __post_init__(self) -> None:
         turn_joint_ids(self.twist_joints)  # a bad joint name fails here, not mid-fit
@@ -221,8 +224,14 @@ def allowed_parts(probs: torch.Tensor, top: int = 2, min_prob: float = 0.2) -> t
     return out
 
 
+@functools.cache
+def _thread_pool(threads: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(threads, thread_name_prefix="arteq-match")
+
+
 class _KDTreeMatcher:
-    """Nearest-vertex matches with scipy's cKDTree (CPU)."""
+    """Nearest-vertex matches with scipy's cKDTree (CPU). ``workers`` threads share a batch's scans (cKDTree
+    releases the GIL while it builds and searches); every scan's matches are the same either way."""
 
     def __init__(self, points: torch.Tensor, allowed: torch.Tensor, part_labels: torch.Tensor, workers: int):
         from scipy.spatial import cKDTree
@@ -236,6 +245,15 @@ class _KDTreeMatcher:
         self.part_vidx = [np.nonzero(labels == j)[0] for j in range(k)]
         al = allowed.cpu().numpy()
         self.allowed_idx = [[np.nonzero(al[b, :, j])[0] for j in range(k)] for b in range(al.shape[0])]
+
+    def rows(self, keep: np.ndarray) -> _KDTreeMatcher:
+        """The matcher of the scans ``keep [B]`` (bool) only (its trees shared)."""
+        out = object.__new__(_KDTreeMatcher)
+        out.cKDTree, out.workers, out.part_vidx = self.cKDTree, self.workers, self.part_vidx
+        out.points = self.points[keep]
+        out.scan_trees = [t for t, k in zip(self.scan_trees, keep) if k]
+        out.allowed_idx = [a for a, k in zip(self.allowed_idx, keep) if k]
+        return out
 
     def _tree(self, vertices: np.ndarray):
         """A tree over posed vertices, rebuilt at every match: the sliding-midpoint build without the
@@ -251,23 +269,29 @@ class _KDTreeMatcher:
             pidx = self.allowed_idx[i][j]
             if len(pidx) == 0 or len(vidx) == 0:
                 continue
-            d, nn = self._tree(v[vidx]).query(self.points[i, pidx], workers=self.workers)
+            d, nn = self._tree(v[vidx]).query(self.points[i, pidx])
             upd = d < best[pidx]
             best[pidx[upd]] = d[upd]
             out[pidx[upd]] = vidx[nn[upd]]
         return out
 
+    def _each(self, f: Callable[[int], np.ndarray], n: int) -> np.ndarray:
+        """``f`` of every scan ``0..n-1``, stacked (on the thread pool when there is one)."""
+        if self.workers > 1 and n > 1:
+            return np.stack(list(_thread_pool(self.workers).map(f, range(n))))
+        return np.stack([f(i) for i in range(n)])
+
     def scan_to_model(self, verts: torch.Tensor, gated: bool) -> torch.Tensor:
         v = verts.detach().cpu().double().numpy()
-        out = [
-            self._gated(v[i], i) if gated else self._tree(v[i]).query(self.points[i], workers=self.workers)[1]
-            for i in range(len(v))
-        ]
-        return torch.from_numpy(np.stack(out)).to(verts.device)
+
+        def one(i: int) -> np.ndarray:
+            return self._gated(v[i], i) if gated else self._tree(v[i]).query(self.points[i])[1]
+
+        return torch.from_numpy(self._each(one, len(v))).to(verts.device)
 
     def model_to_scan(self, verts: torch.Tensor) -> torch.Tensor:
         v = verts.detach().cpu().double().numpy()
-        idx = np.stack([t.query(v[i], workers=self.workers)[1] for i, t in enumerate(self.scan_trees)])
+        idx = self._each(lambda i: self.scan_trees[i].query(v[i])[1], len(v))
         return torch.from_numpy(idx).to(verts.device)
 
     def scan_distance(self, i: int, query: torch.Tensor) -> torch.Tensor:
@@ -285,6 +309,14 @@ class _TorchMatcher:
         self.points = points.detach()
         self.allowed_v = [allowed[i][:, part_labels] for i in range(points.shape[0])]  # [N, V] bool
         self.chunk = chunk
+
+    def rows(self, keep: np.ndarray) -> _TorchMatcher:
+        """The matcher of the scans ``keep [B]`` (bool) only."""
+        out = object.__new__(_TorchMatcher)
+        out.chunk = self.chunk
+        out.points = self.points[torch.as_tensor(keep, device=self.points.device)]
+        out.allowed_v = [a for a, k in zip(self.allowed_v, keep) if k]
+        return out
 
     def _nearest(self, a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
         out = []
@@ -443,6 +475,7 @@ def swing_search(
     max_score_cm: float = 3.0,
     explained_cm: float = 3.0,
     cap_cm: float = 5.0,
+    workers: int = 1,
 ) -> np.ndarray:
     """Swings about joints that put lost limbs where their points are: ``[B, K, 3, 3]`` world-frame turns
     (identity where nothing is kept).
@@ -456,16 +489,17 @@ def swing_search(
     joint to point at each of ``dirs`` directions (then finer, around the best); the best swing is kept
     when it scores ``min_gain_cm`` below the branch as it is and at most ``max_score_cm``. Branches are
     tried worst first; one that moves stops its ancestors and descendants from being tried in the same
-    search.
+    search. ``workers`` threads share the scans.
     """
     from scipy.spatial import cKDTree
 
     b = vertices.shape[0]
-    turns = np.tile(np.eye(3), (b, NUM_JOINTS, 1, 1))
     grid = sphere_directions(dirs)
     child = {j: next(k for k in range(NUM_JOINTS) if PARENTS[k] == j) for j in subsets}
     branch = {j: np.isin(part_labels, branch_parts(j)) for j in subsets}
-    for i in range(b):
+
+    def one(i: int) -> np.ndarray:
+        turns = np.tile(np.eye(3), (NUM_JOINTS, 1, 1))
         pts, verts = points[i], vertices[i]
         d_fit, nearest = cKDTree(verts).query(pts)
         loose = d_fit * 100 > explained_cm
@@ -503,9 +537,62 @@ def swing_search(
                 if best_dir is None:
                     break
             if best_rot is not None and current - best >= min_gain_cm and best <= max_score_cm:
-                turns[i, j] = best_rot
+                turns[j] = best_rot
                 blocked.update(k for k in subsets if k in branch_parts(j) or j in branch_parts(k))
-    return turns
+        return turns
+
+    if b == 0:
+        return np.zeros((0, NUM_JOINTS, 3, 3))
+    if workers > 1 and b > 1:
+        return np.stack(list(_thread_pool(workers).map(one, range(b))))
+    return np.stack([one(i) for i in range(b)])
+
+
+def refine_iteration(cfg: RefineConfig, fraction: float) -> int:
+    """The iteration at ``fraction`` of :func:`refine`'s, moved down to one where the scan -> model matches
+    are renewed (so a search or a ``stop`` there leaves the other scans' fits as they were); -1 for a
+    negative fraction or one past the end."""
+    iters = max(0, int(cfg.iters))
+    if fraction < 0:
+        return -1
+    gate_iters = int(round(cfg.gate_frac * iters))
+    when = int(round(fraction * iters))
+    if when >= gate_iters:
+        when -= (when - gate_iters) % max(1, cfg.reassoc_every)
+    elif when > 0:
+        when -= when % max(1, cfg.gate_reassoc_every)
+    return when if 0 <= when < iters else -1
+
+
+def _rows_of_params(
+    opt: torch.optim.Optimizer, params: tuple[torch.Tensor, ...], keep: torch.Tensor
+) -> list[torch.Tensor]:
+    """``params``' rows ``keep`` as new leaves that replace them in ``opt`` (one per param group, in order),
+    with their Adam moments carried over."""
+    out = []
+    for group, p in zip(opt.param_groups, params):
+        q = p.detach()[keep].clone().requires_grad_(True)
+        state = opt.state.pop(p, {})
+        opt.state[q] = {
+            k: (v[keep].clone() if torch.is_tensor(v) and v.dim() > 0 else v) for k, v in state.items()
+        }
+        group["params"] = [q]
+        out.append(q)
+    return out
+
+
+def _rows_visible(
+    m2s_visible: Callable[[torch.Tensor], torch.Tensor], alive: torch.Tensor, total: int
+) -> Callable[[torch.Tensor], torch.Tensor]:
+    """``m2s_visible`` of a batch of ``total`` rows for the rows ``alive`` only (the others get the first
+    row's vertices: their answers are not used)."""
+
+    def visible(verts: torch.Tensor) -> torch.Tensor:
+        full = verts[:1].expand(total, -1, -1).clone()
+        full[alive.to(verts.device)] = verts
+        return m2s_visible(full)[alive.to(verts.device)]
+
+    return visible
 
 
 def refine(
@@ -517,6 +604,8 @@ def refine(
     callback: Callable[[int, torch.Tensor], None] | None = None,
     m2s_subset: torch.Tensor | None = None,
     m2s_visible: Callable[[torch.Tensor], torch.Tensor] | None = None,
+    stop: Callable[[int, torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
+    stop_at: tuple[int, ...] = (),
 ) -> RefineOutput:
     """Refine ``init`` against ``points`` (see module docstring).
 
@@ -526,11 +615,18 @@ def refine(
         part_probs: ``[B, N, K]`` part probabilities (or one-hot labels) of the points.
         init: ``local_rotmats [B,22,3,3]``, ``betas [B,nb]``, ``transl [B,3]``.
         config: :class:`RefineConfig`.
-        callback: called as ``callback(iteration, vertices [B,V,3])`` before each step (for studies).
+        callback: called as ``callback(iteration, vertices [B,V,3])`` before each step (for studies; after a
+            ``stop``, the rows still refined).
         m2s_subset: ``[S]`` vertex indices for the model -> scan term (default: farthest points).
         m2s_visible: for partial scans, a function of the posed vertices ``[B, V, 3]`` giving ``[B, V]``
             bool, the vertices each scan's camera sees (e.g. :func:`arteq.fit.partial.visibility_function`):
             the model -> scan term then uses only those of the subset. ``None``: every subset vertex.
+        stop: at each iteration of ``stop_at``, called as ``stop(iteration, rows [A], vertices [A, V, 3])``
+            with the batch indices of the scans still refined and their posed vertices; returns ``[A]`` bool,
+            the scans to stop refining there (e.g. the worse of two starts of one scan). A stopped scan's
+            result is its fit at that iteration; the others' are those of a run without ``stop`` when
+            ``stop_at`` holds only re-matching iterations (:func:`refine_iteration`).
+        stop_at: iterations at which ``stop`` is called.
     Returns:
         :class:`RefineOutput`.
     """
@@ -553,8 +649,9 @@ def refine(
     backend = cfg.backend
     if backend == "auto":
         backend = "torch" if device.type == "cuda" else "kdtree"
+    workers = cfg.workers if cfg.workers > 0 else torch.get_num_threads()
     if backend == "kdtree":
-        matcher = _KDTreeMatcher(points, allowed, body.part_labels, cfg.workers)
+        matcher = _KDTreeMatcher(points, allowed, body.part_labels, workers)
     elif backend == "torch":
         matcher = _TorchMatcher(points, allowed, body.part_labels)
     else:
@@ -589,16 +686,14 @@ def refine(
         ("twist", cfg.twist_at, cfg.twist_joints),
     ):
         ids = turn_joint_ids(names)
-        when = int(round(at * iters)) if at >= 0 and ids else -1
-        # on an iteration that matches again anyway (scans stay independent)
-        if when >= gate_iters:
-            when -= (when - gate_iters) % max(1, cfg.reassoc_every)
-        elif when > 0:
-            when -= when % max(1, cfg.gate_reassoc_every)
-        if 0 <= when < iters:
+        when = refine_iteration(cfg, at) if ids else -1  # on an iteration that matches again anyway
+        if when >= 0:
             searches.setdefault(when, []).append((kind, ids))
     history: list[dict[str, float]] = []
     idx = normals = w = visible = sel = inv = None
+    alive = torch.arange(b)  # the batch rows still refined (``stop``)
+    stopped: dict[int, tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = {}  # row -> rot, betas, transl
+    visible_of = m2s_visible
 
     def pose_of(d: torch.Tensor) -> torch.Tensor:
         return start_rot @ roma.rotvec_to_rotmat(d)
@@ -619,7 +714,7 @@ def refine(
                 pts, posed.vertices.cpu().double().numpy(), posed.joints.cpu().double().numpy(),
                 part_labels.cpu().numpy(), {j: tables.branch_subset(j).cpu().numpy() for j in ids},
                 {j: tables.branch_fraction(j) for j in ids}, cfg.swing_dirs, cfg.swing_min_score,
-                cfg.swing_min_gain, cfg.swing_max_score,
+                cfg.swing_min_gain, cfg.swing_max_score, workers=workers,
             )  # fmt: skip
             turns = torch.as_tensor(turns, dtype=dtype, device=device)
         changed = (turns - torch.eye(3, dtype=dtype, device=device)).abs().amax((-1, -2)) > 0
@@ -645,11 +740,34 @@ def refine(
         gated = it < gate_iters
         every = cfg.gate_reassoc_every if gated else cfg.reassoc_every
         rematch = idx is None or (it - (0 if gated else gate_iters)) % max(1, every) == 0
-        if rematch or callback is not None:
+        stopping = stop is not None and it in stop_at and len(alive) > 1
+        if rematch or callback is not None or stopping:
             with torch.no_grad():
                 vd = body(betas=betas, pose=rot, transl=transl0 + dt).vertices
             if callback is not None:
                 callback(it, vd)
+        if stopping:
+            out_rows = torch.as_tensor(stop(it, alive.clone(), vd), dtype=torch.bool).cpu()
+            if out_rows.any() and not out_rows.all():
+                for a in torch.nonzero(out_rows)[:, 0].tolist():
+                    stopped[int(alive[a])] = (rot[a].detach(), betas[a].detach(), (transl0 + dt)[a].detach())
+                keep = ~out_rows
+                kd = keep.to(device)
+                alive = alive[keep]
+                b = len(alive)
+                points, allowed = points[kd], allowed[kd]
+                matcher = matcher.rows(keep.numpy())
+                start_rot, transl0, vd = start_rot[kd], transl0[kd], vd[kd]
+                delta, dt, betas = _rows_of_params(opt, (delta, dt, betas), kd)
+                rot = pose_of(delta)
+                if idx is not None:
+                    idx, normals, w = idx[kd], normals[kd], w[kd]
+                    if visible is not None:
+                        visible = visible[kd]
+                    if partial:
+                        sel, inv = torch.unique(torch.cat([idx.reshape(-1), m2s_subset]), return_inverse=True)
+                if m2s_visible is not None:
+                    visible_of = _rows_visible(m2s_visible, alive, len(stopped) + len(alive))
         if rematch:
             with torch.no_grad():
                 idx = matcher.scan_to_model(vd, gated)
@@ -659,8 +777,8 @@ def refine(
                 else:
                     ok = torch.gather(allowed, 2, part_labels[idx][..., None])[..., 0]
                     w = torch.where(ok, 1.0, 0.5).to(dtype)
-                if m2s_visible is not None:
-                    visible = m2s_visible(vd).to(device)[:, m2s_subset]
+                if visible_of is not None:
+                    visible = visible_of(vd).to(device)[:, m2s_subset]
                 if partial:  # the vertices the objective uses: the matched ones and the subset
                     sel, inv = torch.unique(torch.cat([idx.reshape(-1), m2s_subset]), return_inverse=True)
         if partial:
@@ -700,12 +818,19 @@ def refine(
             raise FloatingPointError(f"refine: objective became {history[-1]['loss']} at iteration {it}")
 
     with torch.no_grad():
-        rot = pose_of(delta)
-        out = body(betas=betas, pose=rot, transl=transl0 + dt)
+        rot, betas, transl = pose_of(delta), betas.detach(), (transl0 + dt).detach()
+        if stopped:  # every row back in its place
+            order = torch.argsort(torch.cat([alive, torch.tensor(sorted(stopped))]))
+            rows = [stopped[r] for r in sorted(stopped)]
+            rot, betas, transl = (
+                torch.cat([x, torch.stack([r[k] for r in rows])])[order.to(device)]
+                for k, x in enumerate((rot, betas, transl))
+            )
+        out = body(betas=betas, pose=rot, transl=transl)
     return RefineOutput(
         local_rotmats=rot.detach(),
-        betas=betas.detach(),
-        transl=(transl0 + dt).detach(),
+        betas=betas,
+        transl=transl,
         vertices=out.vertices.detach(),
         joints=out.joints.detach(),
         global_rotmats=out.global_rotmats.detach(),
