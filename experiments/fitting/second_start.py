@@ -54,7 +54,9 @@ def main() -> None:
             other = research._network(clouds)
             x = torch.as_tensor(np.stack(clouds), dtype=torch.float32)
             posed = self.module.body(betas=own["betas"].float(), pose=other["local_rotmats"].float())
-            transl = estimate_translation(posed.vertices, self.module.centroid_matrix, x, other["pool_weights"])
+            transl = estimate_translation(
+                posed.vertices, self.module.centroid_matrix, x, other["pool_weights"]
+            )
             return {**own, "local_rotmats": other["local_rotmats"], "part_probs": other["part_probs"],
                     "transl": transl}  # fmt: skip
 
@@ -75,7 +77,8 @@ def main() -> None:
             pts = r.scan_points.astype(np.float64)
             row[f"{key}_score"] = surface_score(pts, r.vertices.astype(np.float64), subset)
         records.append(row)
-        print(f"{row['group'][:14]:14s} {row['name']:22s} scan {row['scan_v2v']:6.2f} ({row['scan_score']:.2f}, "
+        print(f"{row['group'][:14]:14s} {row['name']:22s} scan {row['scan_v2v']:6.2f} "
+              f"({row['scan_score']:.2f}, "
               f"{row['scan_status']}) second {row['second_v2v']:6.2f} ({row['second_score']:.2f}, "
               f"{row['second_status']})", flush=True)  # fmt: skip
     v = np.array([[r["scan_v2v"], r["second_v2v"]] for r in records])
