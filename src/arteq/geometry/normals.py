@@ -11,8 +11,9 @@ def vertex_normals(
     """Area-weighted unit vertex normals. ``vertices [B, V, 3]``, ``faces [F, 3]`` -> ``[B, V, 3]``;
     ``incidence``: optional sparse ``[V, F]`` vertex-face matrix (faster on CPU). A vertex in no face
     (or only in degenerate ones) gets the zero vector."""
-    tri = vertices[:, faces]  # [B, F, 3, 3]
-    fn = torch.linalg.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+    # three row selects: the same face normals as ``vertices[:, faces]``, without its [B, F, 3, 3] gather
+    v0, v1, v2 = (vertices.index_select(1, faces[:, k]) for k in range(3))
+    fn = torch.linalg.cross(v1 - v0, v2 - v0)
     if incidence is not None:
         b, f, _ = fn.shape
         vn = (incidence @ fn.permute(1, 0, 2).reshape(f, b * 3)).reshape(-1, b, 3).permute(1, 0, 2)
