@@ -174,3 +174,26 @@ def test_stage2_run_killed_during_its_inner_stage1_resumes_stage1_first(tmp_path
     plan = plan_run(cfg)
     assert plan["resume"] == {"2": str(run / "checkpoints" / "step0000003.ckpt")}
     assert plan["stage1"]["ckpt"] is None
+
+
+def test_train_epoch_offset_draws_later_epochs_and_resumes_within_them():
+    """``data.train_epoch_offset=k``: epoch e draws the clouds of epoch e + k of the unshifted stream (ones an
+    earlier run of k epochs never drew); the saved epoch counters stay the run's own, so resuming keeps the
+    shift; a negative offset is an error."""
+    from arteq.data import BodyScanDataModule
+    from arteq.data.dataset import EpochSampler
+
+    assert EpochSampler(12, epoch_offset=3).epoch_indices(0) == EpochSampler(12).epoch_indices(3)
+    assert min(EpochSampler(12, epoch_offset=3).epoch_indices(0)) >= 3 * 12  # past the first 3 epochs
+    dm = BodyScanDataModule(
+        body_model={"name": "toy"}, num_points=64, train_size=12, batch_size=2, cache=False,
+        train_epoch_offset=3,
+    )  # fmt: skip
+    dm.train_dataloader()
+    assert list(dm.train_sampler) == EpochSampler(12).epoch_indices(3)
+    state = {"epoch": 1, "batches_done": 4, "batches_in_epoch": 6, "batch_size": 2, "world_size": 1}
+    dm.load_state_dict(state)
+    dm.train_dataloader()
+    assert list(dm.train_sampler) == EpochSampler(12).epoch_indices(4)[8:]
+    with pytest.raises(ValueError, match="train_epoch_offset"):
+        BodyScanDataModule(body_model={"name": "toy"}, num_points=64, train_size=12, train_epoch_offset=-1)

@@ -253,6 +253,9 @@ class BodyScanDataModule(L.LightningDataModule):
             Validation and the test sets are unchanged.
         test_splits: the test sets to run, a subset of :data:`arteq.results.TEST_SPLITS` (default all).
         train_size: samples per epoch (``null`` with AMASS: number of training frames).
+        train_epoch_offset: the training stream starts at this epoch (``>= 0``): a run that continues from
+            another run's weights trains on clouds that run never drew (:class:`EpochSampler`); the fixed
+            sets do not depend on it.
         val_size, test_size: fixed set sizes (``null`` with AMASS: all frames of the split; the graded OOD
             sets, synthetic and infinite, then have :data:`GRADED_DEFAULT_SIZE` clouds).
         batch_size, eval_batch_size, num_workers: loaders.
@@ -290,6 +293,7 @@ class BodyScanDataModule(L.LightningDataModule):
         train_pose_mix: Mapping[str, float] | None = None,
         test_splits: list[str] | tuple[str, ...] | None = None,
         train_size: int | None = 2000,
+        train_epoch_offset: int = 0,
         val_size: int | None = 64,
         test_size: int | None = 256,
         batch_size: int = 4,
@@ -364,6 +368,9 @@ class BodyScanDataModule(L.LightningDataModule):
         self.eval_batch_size = eval_batch_size or batch_size
         self.num_workers = num_workers
         self.seed = seed
+        if int(train_epoch_offset) < 0:
+            raise ValueError(f"data.train_epoch_offset must be >= 0, got {train_epoch_offset}")
+        self.train_epoch_offset = int(train_epoch_offset)
         self.cache = cache
         self.cache_root = Path(cache_root).expanduser() if cache_root else None
         self._body: torch.nn.Module | None = None
@@ -599,7 +606,9 @@ class BodyScanDataModule(L.LightningDataModule):
     def train_dataloader(self) -> DataLoader:
         ds = self._get("train")
         rank, world = self._rank_world()
-        sampler = EpochSampler(len(ds), seed=self.seed, rank=rank, world_size=world)
+        sampler = EpochSampler(
+            len(ds), seed=self.seed, rank=rank, world_size=world, epoch_offset=self.train_epoch_offset
+        )
         if self._resume_state is not None:
             st = self._resume_state
             if (st.get("world_size"), st.get("batch_size")) != (world, self.batch_size):

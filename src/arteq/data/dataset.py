@@ -233,11 +233,26 @@ class EpochSampler(Sampler[int]):
     loader gets a new epoch each time); ``set_epoch`` pins the next iteration's epoch (Lightning calls
     it every epoch) and ``resume(epoch, skip)`` additionally skips the first ``skip`` indices of that
     epoch's shard once (mid-epoch resume: the skipped samples are never generated).
+
+    ``epoch_offset`` shifts the stream: epoch ``e`` draws what epoch ``e + epoch_offset`` of an unshifted
+    sampler would (a run that starts from another run's weights can train on clouds that run never drew;
+    the epoch counters, and so resuming, are unaffected).
     """
 
-    def __init__(self, size: int, seed: int = 0, shuffle: bool = True, rank: int = 0, world_size: int = 1):
+    def __init__(
+        self,
+        size: int,
+        seed: int = 0,
+        shuffle: bool = True,
+        rank: int = 0,
+        world_size: int = 1,
+        epoch_offset: int = 0,
+    ):
         if not 0 <= rank < world_size:
             raise ValueError(f"EpochSampler: rank must be in [0, {world_size}), got {rank}")
+        if int(epoch_offset) < 0:
+            raise ValueError(f"EpochSampler: epoch_offset must be >= 0, got {epoch_offset}")
+        self.epoch_offset = int(epoch_offset)
         self.size, self.seed, self.shuffle = size, seed, shuffle
         self.rank, self.world_size = int(rank), int(world_size)
         self.per_rank = size // self.world_size
@@ -261,6 +276,7 @@ class EpochSampler(Sampler[int]):
 
     def epoch_indices(self, epoch: int) -> list[int]:
         """This rank's full index list of ``epoch`` (what an iteration of that epoch yields)."""
+        epoch = epoch + self.epoch_offset
         if self.shuffle:
             order = torch.randperm(self.size, generator=seeded_generator(self.seed, "epoch", epoch))
         else:
