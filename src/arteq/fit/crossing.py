@@ -132,7 +132,8 @@ def try_swaps(
         (the fit refined again) or "" (the fit kept), and unless "" "local_rotmats", "betas", "transl",
         "vertices", "joints", "global_rotmats" (tensors of one scan)}``; ``"stopped": {pair: iteration}``
         for the swaps that stopped at :attr:`CrossingConfig.stop_at` (their score there); with ``keep_all``
-        also ``"all_vertices": {pair or "none": [V, 3]}`` of every start tried (for studies).
+        also ``"all_vertices": {pair or "none": [V, 3]}`` and ``"all_local": {pair or "none": [22, 3, 3]}``
+        of every start tried (for studies).
     """
     from arteq.fit.refine import refine
 
@@ -200,6 +201,7 @@ def try_swaps(
         row_of[(i, pair)] = r
         if keep_all:
             out[i].setdefault("all_vertices", {})[pair] = res.vertices[r].detach()
+            out[i].setdefault("all_local", {})[pair] = res.local_rotmats[r].detach()
     for i, rec in enumerate(out):
         if "none" not in rec["tried"]:
             continue
