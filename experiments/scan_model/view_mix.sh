@@ -8,6 +8,7 @@
 #   sv25  a quarter (run3's: the same training continued, the arms' baseline)
 #   sv50  a half
 #   sv75  three quarters
+#   ood55 a quarter, with more joint-limit poses: pose mix {id:0.25,ood:0.55,limb1:0.1,limb2:0.1} (run3's: 0.4/0.4)
 #   bash experiments/scan_model/view_mix.sh [ARM ...]     (one thread each, arms one after another)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -26,6 +27,7 @@ for arm in "${ARMS[@]}"; do
     sv25) extra=(data.single_view.prob=0.25) ;;
     sv50) extra=(data.single_view.prob=0.5) ;;
     sv75) extra=(data.single_view.prob=0.75) ;;
+    ood55) extra=(data.single_view.prob=0.25 'data.train_pose_mix={id:0.25,ood:0.55,limb1:0.1,limb2:0.1}') ;;
     *) echo "unknown arm $arm" >&2; exit 2 ;;
   esac
   .venv/bin/python -m arteq.train "${COMMON[@]}" "${extra[@]}" hydra.run.dir="$OUT/$arm" > "$OUT/$arm.log" 2>&1
