@@ -25,7 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--ckpt",
         default=None,
         help="checkpoint file or pretrained name (default: anny_scan, the scan-fitting model; anny22: the "
-        "research model, better on everyday adult poses)",
+        "research model, adults in everyday poses only)",
     )
     ap.add_argument("--refine", action=argparse.BooleanOptionalAction, default=True,
                     help="refine the network's fit against the scan (default: on)")  # fmt: skip
