@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from arteq.fit.clean import CleanConfig, CleanResult, clean_scan
+from arteq.fit.conditions import denoise, scan_conditions
 from arteq.fit.crossing import CrossingConfig, pairs_to_try, try_swaps
 from arteq.fit.quality import REFUSE_FLAGS, QualityThresholds, describe_flags, fit_quality, verdict
 from arteq.fit.refine import RefineConfig, body_tables, refine, refine_iteration
@@ -227,6 +228,8 @@ class FitResult:
             "parts_covered": q.get("parts_covered"),
             "max_abs_beta": q.get("max_abs_beta"),
             "extent_m": q.get("extent_m"),
+            "noise_mm": q.get("noise_mm"),
+            "denoised": q.get("denoised"),
             "flags": " ".join(q.get("flags", [])),
             "scan_mode": self.scan_mode,
             "parts_seen": int(self.parts_seen.sum()) if self.parts_seen is not None else None,
@@ -389,6 +392,9 @@ class Fitter:
             model ``anny22``, everyday adults, more precise in its poses) for a model on the all-ages body,
             none otherwise; a checkpoint path or shipped name; ``False``: none. It lends its local rotations
             and part probabilities; the shape stays this model's, the translation is placed for it.
+        denoise_above_mm: a full scan whose noise (:func:`arteq.fit.conditions.scan_conditions`) is above
+            this reaches the network smoothed (:func:`arteq.fit.conditions.denoise`; the refinement and the
+            check use the raw points); ``None``: never (experiments/fitting/scan_defects.md).
     """
 
     def __init__(
@@ -410,6 +416,7 @@ class Fitter:
         hypotheses: Any = True,
         crossing: CrossingConfig | bool = True,
         second_start: str | Path | bool | None = None,
+        denoise_above_mm: float | None = 10.0,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
 
@@ -455,6 +462,7 @@ class Fitter:
         self.seed = seed
         self.clean = clean
         self.clean_config = clean_config or CleanConfig()
+        self.denoise_above_mm = denoise_above_mm
         self.faces = self.body.faces.cpu().numpy()
         self.vertex_parts = self.body.part_labels.cpu().numpy()
         self.subset = body_tables(self.body, self.refine_config.m2s_vertices).m2s_subset.cpu().numpy()
@@ -540,7 +548,9 @@ class Fitter:
         t_clean = time.perf_counter() - t0
         check_body_size(body_m, name, units)
         center = body_m.mean(0)
+        conditions = scan_conditions(body_m, seed=self.seed)
         return {"name": name, "centred": body_m - center, "center": center, "keep": clutter == 0,
+                "conditions": conditions,
                 "finite": keep, "finite_centred": metres - center, "clutter": clutter, "clean": cleaned,
                 "clean_seconds": t_clean, "scale": scale, "units": units, "warnings": warnings,
                 "viewpoint": None if viewpoint is None else np.asarray(viewpoint, float) * scale - center,
@@ -561,7 +571,9 @@ class Fitter:
         net_in, ref_in = [], []
         for it in items:
             rng = np.random.default_rng(self.seed)
-            net_in.append(resample(it["centred"], self.net_points, rng))
+            it["denoised"] = self._smooth_for_network(it)
+            src = denoise(it["centred"]) if it["denoised"] else it["centred"]
+            net_in.append(resample(src, self.net_points, rng))
             ref_in.append(resample(it["centred"], self.points, rng))
         pred = self._network(net_in)
         probs_net = pred["part_probs"].float().cpu().numpy()  # (waits for a GPU)
@@ -632,7 +644,8 @@ class Fitter:
         if self.refine and self.crossing is not None:
             fit = {"local_rotmats": local, "betas": betas, "transl": transl, "vertices": verts,
                    "joints": joints, "global_rotmats": grot}  # fmt: skip
-            crossing, t_cross, checked = self._crossings(ref_in, probs_fit, modes, fit)
+            conditions = [it.get("conditions") for it in items]
+            crossing, t_cross, checked = self._crossings(ref_in, probs_fit, modes, fit, conditions)
             local, betas, transl = fit["local_rotmats"], fit["betas"], fit["transl"]
             verts, joints, grot = fit["vertices"], fit["joints"], fit["global_rotmats"]
         import roma
@@ -656,7 +669,12 @@ class Fitter:
             q = checked[i]
             if q is None:
                 q = fit_quality(ref_in[i], verts[i], self.vertex_parts, subset, betas[i], probs_ref[i],
-                                self.thresholds)  # fmt: skip
+                                self.thresholds, it.get("conditions"))  # fmt: skip
+            cond = it.get("conditions") or {}
+            noise = cond.get("noise_m")
+            q["noise_mm"] = float("nan") if noise is None else round(noise * 1000, 2)
+            q["spacing_mm"] = round(cond.get("spacing_m", float("nan")) * 1000, 2)
+            q["denoised"] = bool(it.get("denoised", False))
             if crossing[i] and crossing[i]["taken"] and crossing[i]["first_doubt"] and not q["flags"]:
                 # a refit the check no longer doubts stays flagged: surface checks pass refits of wrong
                 # vertices (experiments/fitting/crossing.md)
@@ -861,7 +879,12 @@ class Fitter:
         return probs_fit
 
     def _crossings(
-        self, ref_in: list[np.ndarray], probs_ref: np.ndarray, modes: list[dict[str, Any]], fit: dict
+        self,
+        ref_in: list[np.ndarray],
+        probs_ref: np.ndarray,
+        modes: list[dict[str, Any]],
+        fit: dict,
+        conditions: list[dict | None] | None = None,
     ) -> tuple[list[dict | None], list[float], list[dict | None]]:
         """Crossed limbs (:mod:`arteq.fit.crossing`) for the full scans of a refined batch: which pairs each
         tries, the swaps' refinement, and ``fit``'s tensors replaced where a swap is kept. Returns per scan
@@ -879,6 +902,7 @@ class Fitter:
             q = fit_quality(
                 ref_in[i], fit["vertices"][i].detach().double().cpu().numpy(), self.vertex_parts,
                 self.subset, fit["betas"][i].detach().double().cpu().numpy(), probs_ref[i], self.thresholds,
+                conditions[i] if conditions else None,
             )  # fmt: skip
             checked[i] = q
             if verdict(q["flags"]) == "not_single_body":
@@ -903,6 +927,21 @@ class Fitter:
                     fit[k][i] = p[k].to(fit[k].dtype)
         seconds = (time.perf_counter() - t0) / max(1, sum(bool(t) for t in tries))
         return records, [seconds if t else 0.0 for t in tries], checked
+
+    def _smooth_for_network(self, item: dict[str, Any]) -> bool:
+        """Whether a scan reaches the network smoothed: a full surface (no camera, not one-sided) noisier
+        than ``denoise_above_mm`` (measured on full scans only: experiments/fitting/scan_defects.md)."""
+        from arteq.fit.partial import PARTIAL_SCORE, one_sidedness
+
+        noise = item.get("conditions", {}).get("noise_m")
+        if self.denoise_above_mm is None or noise is None or noise * 1000 <= self.denoise_above_mm:
+            return False
+        if self.partial or item.get("viewpoint") is not None or self.view_dir is not None:
+            return False
+        if self.partial is None:
+            score, _ = one_sidedness(resample(item["centred"], 4000, np.random.default_rng(self.seed)))
+            return bool(score <= PARTIAL_SCORE)
+        return True
 
     def _scan_modes(
         self, items: list[dict[str, Any]], net_in: list[np.ndarray], ref_in: list[np.ndarray],

@@ -68,6 +68,14 @@ class QualityThresholds:
     #: refused: this share of the points or more on one sphere (within ``sphere_tol_cm`` of it)
     max_sphere_frac: float = 0.8
     sphere_tol_cm: float = 3.0
+    #: a noisy or sparse scan (:mod:`arteq.fit.conditions`): above ``noise_from_mm`` of noise, the inlier
+    #: distance at least ``noise_inlier`` times the noise and the inlier RMS limit at least ``noise_rmse``
+    #: times it; the covering radius at least ``spacing_cover`` times its sparse regions' spacing
+    #: (experiments/fitting/scan_defects.md). The calibration's scans (5 mm noise) read up to 8.7 mm.
+    noise_from_mm: float = 10.0
+    noise_inlier: float = 2.5
+    noise_rmse: float = 1.5
+    spacing_cover: float = 0.7
 
 
 def fit_quality(
@@ -78,6 +86,7 @@ def fit_quality(
     betas: np.ndarray,
     part_probs: np.ndarray | None = None,
     thresholds: QualityThresholds | None = None,
+    conditions: dict | None = None,
 ) -> dict:
     """Quality values and flags of one fit.
 
@@ -86,18 +95,28 @@ def fit_quality(
         vertices: ``[V, 3]`` fitted mesh; ``vertex_parts [V]`` part of each vertex; ``subset [S]`` the
             evenly spread vertices used for coverage; ``betas [nb]``.
         part_probs: ``[N, K]`` predicted part probabilities (for ``label_agree``), optional.
+        conditions: the scan's :func:`arteq.fit.conditions.scan_conditions` (``noise_m``, ``spacing_m``),
+            optional: the inlier distance, the inlier RMS limit and the covering radius grow with them.
     Returns:
-        dict of the values above plus ``flags`` (list of reason codes, empty when the fit passes).
+        dict of the values above plus ``flags`` (list of reason codes, empty when the fit passes), and the
+        distances used (``inlier_cm``, ``cover_cm``, ``max_rmse_cm``).
     """
     from scipy.spatial import cKDTree
 
     th = thresholds or QualityThresholds()
+    inlier_cm, cover_cm, max_rmse_cm = th.inlier_cm, th.cover_cm, th.max_rmse_cm
+    if conditions:
+        if conditions.get("noise_m") is not None and conditions["noise_m"] * 1000 > th.noise_from_mm:
+            inlier_cm = max(inlier_cm, th.noise_inlier * conditions["noise_m"] * 100)
+            max_rmse_cm = max(max_rmse_cm, th.noise_rmse * conditions["noise_m"] * 100)
+        if conditions.get("spacing_m") is not None:
+            cover_cm = max(cover_cm, th.spacing_cover * conditions["spacing_m"] * 100)
     d, vi = cKDTree(vertices).query(points)
-    inl = d < th.inlier_cm / 100
+    inl = d < inlier_cm / 100
     inlier_frac = float(inl.mean())
     rmse = float(np.sqrt(np.mean(d[inl] ** 2)) * 100) if inl.any() else float("inf")
     dv, _ = cKDTree(points).query(vertices[subset])
-    coverage = float((dv < th.cover_cm / 100).mean())
+    coverage = float((dv < cover_cm / 100).mean())
     fitted_part = vertex_parts[vi]
     counts = np.bincount(fitted_part[inl], minlength=22)
     parts_covered = int((counts >= 0.005 * max(1, inl.sum())).sum())
@@ -121,7 +140,9 @@ def fit_quality(
         "max_abs_beta": max_beta,
         "extent_m": extent,
         "mean_dist_cm": float(d.mean() * 100),
-        "inlier_cm": th.inlier_cm,
+        "inlier_cm": inlier_cm,
+        "cover_cm": cover_cm,
+        "max_rmse_cm": max_rmse_cm,
         "sphere_frac": sphere_frac,
         "sphere_radius_m": sphere_r,
     }
@@ -162,7 +183,7 @@ def quality_flags(q: dict, thresholds: QualityThresholds | None = None) -> list[
         flags.append("missing_parts")
     if q["max_abs_beta"] > th.max_beta:
         flags.append("implausible_shape")
-    if q["rmse_in_cm"] > th.max_rmse_cm:
+    if q["rmse_in_cm"] > q.get("max_rmse_cm", th.max_rmse_cm):
         flags.append("high_residual")
     if q.get("sphere_frac", 0.0) >= th.max_sphere_frac:  # records written before the value: no sphere
         flags.append("sphere")
@@ -189,7 +210,10 @@ def describe_flags(q: dict, flags: list[str] | None = None) -> str:
             f"only {q['inlier_frac']:.0%} of the points within {q.get('inlier_cm', 2.0):g} cm of the fit"
         ),
         "high_residual": f"inlier residual {q['rmse_in_cm']:.1f} cm",
-        "low_coverage": f"the scan covers only {q['coverage']:.0%} of the fitted body",
+        "low_coverage": (
+            f"the scan covers only {q['coverage']:.0%} of the fitted body "
+            f"(within {q.get('cover_cm', 4.0):.1f} cm)"
+        ),
         "missing_parts": f"points on only {q['parts_covered']} of 22 body parts",
         "implausible_shape": f"implausible shape (|beta| {q['max_abs_beta']:.1f})",
         "wrong_size": f"size {q['extent_m']:.2f} m",
