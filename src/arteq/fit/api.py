@@ -416,7 +416,7 @@ class Fitter:
         hypotheses: Any = True,
         crossing: CrossingConfig | bool = True,
         second_start: str | Path | bool | None = None,
-        denoise_above_mm: float | None = 10.0,
+        denoise_above_mm: float | None = 8.0,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
 
@@ -548,7 +548,11 @@ class Fitter:
         t_clean = time.perf_counter() - t0
         check_body_size(body_m, name, units)
         center = body_m.mean(0)
-        conditions = scan_conditions(body_m, seed=self.seed)
+        # on what the refinement and the check will see: at most ``points`` distinct points
+        sub = body_m
+        if len(body_m) > self.points:
+            sub = body_m[np.random.default_rng(self.seed).choice(len(body_m), self.points, replace=False)]
+        conditions = scan_conditions(sub, seed=self.seed)
         return {"name": name, "centred": body_m - center, "center": center, "keep": clutter == 0,
                 "conditions": conditions,
                 "finite": keep, "finite_centred": metres - center, "clutter": clutter, "clean": cleaned,
