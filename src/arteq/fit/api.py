@@ -545,16 +545,16 @@ class Fitter:
             body_m = metres[cleaned.keep]
         else:
             body_m = metres
-        t_clean = time.perf_counter() - t0
         check_body_size(body_m, name, units)
         center = body_m.mean(0)
-        # on what the refinement and the check will see: at most ``points`` distinct points
-        sub = body_m
+        # measured on at most ``points`` distinct points, as many as the refinement and the check see
+        sub = None
         if len(body_m) > self.points:
-            sub = body_m[np.random.default_rng(self.seed).choice(len(body_m), self.points, replace=False)]
-        conditions = scan_conditions(sub, seed=self.seed)
+            sub = np.random.default_rng(self.seed).choice(len(body_m), self.points, replace=False)
+        conditions = scan_conditions(body_m if sub is None else body_m[sub], seed=self.seed)
+        t_clean = time.perf_counter() - t0
         return {"name": name, "centred": body_m - center, "center": center, "keep": clutter == 0,
-                "conditions": conditions,
+                "conditions": conditions, "subsample": sub,
                 "finite": keep, "finite_centred": metres - center, "clutter": clutter, "clean": cleaned,
                 "clean_seconds": t_clean, "scale": scale, "units": units, "warnings": warnings,
                 "viewpoint": None if viewpoint is None else np.asarray(viewpoint, float) * scale - center,
@@ -576,7 +576,10 @@ class Fitter:
         for it in items:
             rng = np.random.default_rng(self.seed)
             it["denoised"] = self._smooth_for_network(it)
-            src = denoise(it["centred"]) if it["denoised"] else it["centred"]
+            src = it["centred"]
+            if it["denoised"]:  # on the points the noise was measured on (a dense scan: a subsample)
+                sub = it.get("subsample")
+                src = denoise(src if sub is None else src[sub])
             net_in.append(resample(src, self.net_points, rng))
             ref_in.append(resample(it["centred"], self.points, rng))
         pred = self._network(net_in)
