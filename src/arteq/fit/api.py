@@ -416,7 +416,7 @@ class Fitter:
         hypotheses: Any = True,
         crossing: CrossingConfig | bool = True,
         second_start: str | Path | bool | None = None,
-        denoise_above_mm: float | None = 8.0,
+        denoise_above_mm: float | None = 10.0,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
 
