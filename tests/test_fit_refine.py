@@ -83,9 +83,10 @@ def test_refinement_recovers_the_body_from_a_perturbed_start(body, outliers):
 
 
 def test_batched_refinement_matches_one_by_one(body):
+    """Scans are independent, also when the objective uses a subset of their points (``points``)."""
     rng = np.random.default_rng(3)
     scans = [synthetic_scan(body, "test_ood", i, 1000, offset=0.0) for i in range(2)]
-    cfg = RefineConfig(iters=6)
+    cfg = RefineConfig(iters=6, points=600)
     pts = torch.stack([torch.as_tensor(s["points"], dtype=torch.float32) for s in scans])
     inits = [perturbed_start(s, 0.0, rng) for s in scans]
     probs = torch.stack([noisy_probs(s["labels"], rng) for s in scans])
@@ -167,6 +168,18 @@ def test_kdtree_and_torch_matchers_agree(body):
             assert allowed[0, torch.arange(600), body.part_labels[a[0]]].all()
     sub = verts[:, :50]
     assert torch.equal(kd.model_to_scan(sub), th.model_to_scan(sub))
+    # points matched to the model: a subset; the model matched to the whole scan
+    half = pts[:, ::2]
+    kd = _KDTreeMatcher(half, allowed[:, ::2], body.part_labels, 1, scan=pts)
+    th = _TorchMatcher(half, allowed[:, ::2], body.part_labels, chunk=128, scan=pts)
+    assert kd.scan_to_model(verts, False).shape == (1, 300)
+    spread = verts[:, ::100]
+    full = torch.cdist(spread[0], pts[0]).argmin(1)
+    assert torch.equal(kd.model_to_scan(spread)[0], full) and torch.equal(th.model_to_scan(spread)[0], full)
+    assert (full % 2).any()  # points outside the subset are matched: the whole scan is used
+    dist = torch.cdist(spread[0], pts[0]).amin(1).double()
+    torch.testing.assert_close(kd.scan_distance(0, spread[0]), dist, atol=1e-5, rtol=0)
+    torch.testing.assert_close(th.scan_distance(0, spread[0]).double(), dist, atol=1e-5, rtol=0)
 
 
 def _quality(body, points, s, labels, seed=0):

@@ -225,14 +225,17 @@ def surface_distance_cm(fitted: np.ndarray, truth: np.ndarray) -> float:
 
 
 def run(
-    model: str | None, usable_cm: float, seed: int = 0, crossing: bool = True, gain: float | None = None
-) -> list[dict]:
+    model: str | None, usable_cm: float, seed: int = 0, crossing: bool = True, gain: float | None = None,
+    refine_set: tuple[str, ...] = (),
+) -> list[dict]:  # fmt: skip
     from arteq.fit.api import Fitter
     from arteq.fit.crossing import CrossingConfig
+    from arteq.fit.refine import RefineConfig
 
     if crossing and gain is not None:
         crossing = CrossingConfig(min_gain=gain)
-    fitter = Fitter(ckpt=model, device="cpu", anny=False, crossing=crossing)
+    cfg = RefineConfig.from_strings(refine_set)
+    fitter = Fitter(ckpt=model, device="cpu", anny=False, crossing=crossing, refine_config=cfg)
     records = []
     for it in labelled_set(seed):
         t = time.perf_counter()
@@ -297,10 +300,12 @@ def main() -> None:
     ap.add_argument("--usable-cm", type=float, default=3.0, help="V2V (cm) up to which a fit is usable")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="write every scan's record here (JSON)")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
     a = ap.parse_args()
     torch.set_num_threads(1)
     t0 = time.perf_counter()
-    records, ckpt = run(a.model, a.usable_cm, a.seed, crossing=not a.no_crossing, gain=a.crossing_gain)
+    records, ckpt = run(a.model, a.usable_cm, a.seed, crossing=not a.no_crossing, gain=a.crossing_gain,
+                        refine_set=tuple(a.set))  # fmt: skip
     print(f"\ncheckpoint {ckpt}; {len(records)} scans in {time.perf_counter() - t0:.0f} s\n")
     print(table(records))
     if a.out:

@@ -3,7 +3,8 @@
 Start: a prediction (local rotations, betas, translation) and per-point part probabilities, e.g. the
 ArtEq network's. Parameters per scan: a residual rotation ``delta_k`` per joint (``theta_k =
 theta_k^start exp([delta_k])``, starting at 0), a translation offset and the betas. Objective per scan
-(centimetres squared; scans are summed, points averaged within a scan, so scans stay independent):
+(centimetres squared; scans are summed, points averaged within a scan, so scans stay independent), on at
+most ``points`` of each scan's points (a fixed random subset):
 
 * scan -> model: each point against the posed vertex it is matched to, point-to-plane plus ``w_p2p``
   times point-to-point, through a Geman-McClure kernel ``rho(r^2) = s^2 r^2 / (s^2 + r^2)`` whose scale
@@ -58,7 +59,10 @@ from arteq.results import BodyFitResult
 class RefineConfig:
     """Knobs of :func:`refine` (defaults measured in ``experiments/fitting/README.md``)."""
 
-    iters: int = 40
+    iters: int = 60  # 40 before 2026-12-03 (experiments/fitting/converge.md)
+    #: scan points the objective uses: a fixed random subset of each scan's when it has more (0: all);
+    #: half of a 5000-point scan converges as well for half the cost per iteration (converge.md)
+    points: int = 2500
     sigma_start: float = 8.0  # cm
     sigma_end: float = 5.0  # cm; 1.0 before 2026-12-02 (experiments/fitting/README.md, section 1b)
     w_p2p: float = 0.1
@@ -70,11 +74,11 @@ class RefineConfig:
     min_prob: float = 0.2
     w_delta: float = 20.0
     w_delta_end: float = 2.0
-    w_betas: float = 0.5
+    w_betas: float = 0.1  # 0.5 before 2026-12-03 (converge.md)
     early_betas: int = 2
     lr_rot: float = 0.02
     lr_transl: float = 0.01
-    lr_betas: float = 0.05
+    lr_betas: float = 0.1  # 0.05 before 2026-12-03
     reassoc_every: int = 2  # after the gated phase, re-match every this many iterations
     gate_reassoc_every: int = 2  # during the gated phase, re-match every this many iterations
     #: turn search (:func:`twist_search`): at this fraction of the iterations (< 0: never), each joint of
@@ -233,13 +237,20 @@ class _KDTreeMatcher:
     """Nearest-vertex matches with scipy's cKDTree (CPU). ``workers`` threads share a batch's scans (cKDTree
     releases the GIL while it builds and searches); every scan's matches are the same either way."""
 
-    def __init__(self, points: torch.Tensor, allowed: torch.Tensor, part_labels: torch.Tensor, workers: int):
+    def __init__(
+        self, points: torch.Tensor, allowed: torch.Tensor, part_labels: torch.Tensor, workers: int,
+        scan: torch.Tensor | None = None,
+    ):  # fmt: skip
+        """``points [B, N, 3]`` are matched to the model (``allowed [B, N, K]``); the model is matched to
+        ``scan [B, M, 3]`` (default: ``points``), e.g. the whole scan when ``points`` is a subset of it."""
         from scipy.spatial import cKDTree
 
         self.cKDTree = cKDTree
         self.workers = workers
         self.points = points.detach().cpu().double().numpy()
-        self.scan_trees = [cKDTree(p) for p in self.points]
+        self.scan_trees = [
+            cKDTree(p) for p in (self.points if scan is None else scan.detach().cpu().double().numpy())
+        ]
         labels = part_labels.cpu().numpy()
         k = allowed.shape[-1]
         self.part_vidx = [np.nonzero(labels == j)[0] for j in range(k)]
@@ -304,9 +315,12 @@ class _TorchMatcher:
     """Nearest-vertex matches by brute force (``torch.cdist`` in chunks): for GPUs."""
 
     def __init__(
-        self, points: torch.Tensor, allowed: torch.Tensor, part_labels: torch.Tensor, chunk: int = 2048
-    ):
+        self, points: torch.Tensor, allowed: torch.Tensor, part_labels: torch.Tensor, chunk: int = 2048,
+        scan: torch.Tensor | None = None,
+    ):  # fmt: skip
+        """As :class:`_KDTreeMatcher`."""
         self.points = points.detach()
+        self.scan = self.points if scan is None else scan.detach()
         self.allowed_v = [allowed[i][:, part_labels] for i in range(points.shape[0])]  # [N, V] bool
         self.chunk = chunk
 
@@ -314,7 +328,8 @@ class _TorchMatcher:
         """The matcher of the scans ``keep [B]`` (bool) only."""
         out = object.__new__(_TorchMatcher)
         out.chunk = self.chunk
-        out.points = self.points[torch.as_tensor(keep, device=self.points.device)]
+        rows = torch.as_tensor(keep, device=self.points.device)
+        out.points, out.scan = self.points[rows], self.scan[rows]
         out.allowed_v = [a for a, k in zip(self.allowed_v, keep) if k]
         return out
 
@@ -338,12 +353,12 @@ class _TorchMatcher:
 
     def model_to_scan(self, verts: torch.Tensor) -> torch.Tensor:
         v = verts.detach().to(self.points.dtype)
-        return torch.stack([self._nearest(v[i], self.points[i], None) for i in range(v.shape[0])])
+        return torch.stack([self._nearest(v[i], self.scan[i], None) for i in range(v.shape[0])])
 
     def scan_distance(self, i: int, query: torch.Tensor) -> torch.Tensor:
         """Distance of each of ``query [M, 3]`` to scan ``i``'s nearest point."""
         q = query.detach().to(self.points.dtype)
-        return torch.cat([torch.cdist(q[s : s + self.chunk], self.points[i]).amin(1)
+        return torch.cat([torch.cdist(q[s : s + self.chunk], self.scan[i]).amin(1)
                           for s in range(0, q.shape[0], self.chunk)])  # fmt: skip
 
 
@@ -640,6 +655,11 @@ def refine(
     probs = part_probs.to(device=device, dtype=dtype)
     if probs.shape[:2] != (b, n):
         raise ValueError(f"refine: part_probs must be [{b}, {n}, K], got {tuple(probs.shape)}")
+    scan = points  # the model -> scan term and the searches see every point
+    if 0 < cfg.points < n:  # the same seeded subset for every call: results do not depend on batching
+        keep = torch.randperm(n, generator=torch.Generator().manual_seed(0))[: cfg.points].sort().values
+        points, probs = points[:, keep.to(device)], probs[:, keep.to(device)]
+        n = cfg.points
     start_rot = init["local_rotmats"].detach().to(device=device, dtype=dtype)
     betas = init["betas"].detach().to(device=device, dtype=dtype).clone()
     transl0 = init["transl"].detach().to(device=device, dtype=dtype)
@@ -651,9 +671,9 @@ def refine(
         backend = "torch" if device.type == "cuda" else "kdtree"
     workers = cfg.workers if cfg.workers > 0 else torch.get_num_threads()
     if backend == "kdtree":
-        matcher = _KDTreeMatcher(points, allowed, body.part_labels, workers)
+        matcher = _KDTreeMatcher(points, allowed, body.part_labels, workers, scan=scan)
     elif backend == "torch":
-        matcher = _TorchMatcher(points, allowed, body.part_labels)
+        matcher = _TorchMatcher(points, allowed, body.part_labels, scan=scan)
     else:
         raise ValueError(f"refine: backend must be auto, kdtree or torch, got {cfg.backend!r}")
     tables = body_tables(body, cfg.m2s_vertices)
@@ -709,7 +729,7 @@ def refine(
             turns = twist_search(posed.vertices, posed.joints, subsets, matcher.scan_distance,
                                  cfg.twist_steps, cfg.twist_min_gain, cfg.twist_max_score)  # fmt: skip
         else:
-            pts = [p.cpu().double().numpy() for p in points]
+            pts = [p.cpu().double().numpy() for p in scan]
             turns = swing_search(
                 pts, posed.vertices.cpu().double().numpy(), posed.joints.cpu().double().numpy(),
                 part_labels.cpu().numpy(), {j: tables.branch_subset(j).cpu().numpy() for j in ids},
@@ -755,7 +775,7 @@ def refine(
                 kd = keep.to(device)
                 alive = alive[keep]
                 b = len(alive)
-                points, allowed = points[kd], allowed[kd]
+                points, scan, allowed = points[kd], scan[kd], allowed[kd]
                 matcher = matcher.rows(keep.numpy())
                 start_rot, transl0, vd = start_rot[kd], transl0[kd], vd[kd]
                 delta, dt, betas = _rows_of_params(opt, (delta, dt, betas), kd)
@@ -792,7 +812,7 @@ def refine(
         diff = (points - v_match) * 100.0
         r2 = (diff * normals).sum(-1).square() + cfg.w_p2p * diff.square().sum(-1)
         s2m = (w * geman_mcclure(r2, sigma)).sum(-1) / w.sum(-1)
-        d2 = ((v_sub - _gather(points, sub_idx)) * 100.0).square().sum(-1)
+        d2 = ((v_sub - _gather(scan, sub_idx)) * 100.0).square().sum(-1)
         if visible is None:
             kept = torch.topk(d2.detach(), keep_m2s, dim=1, largest=False).indices
             m2s = geman_mcclure(torch.gather(d2, 1, kept), sigma).mean(-1)
