@@ -34,7 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--key", default=None, help="array name in .npz inputs (default: points)")
     ap.add_argument("--device", default="auto", help="cpu, cuda or auto (default)")
     ap.add_argument("--batch-size", type=int, default=4, help="scans fitted together (4)")
-    ap.add_argument("--iters", type=int, default=None, help="refinement iterations (default 40)")
+    ap.add_argument("--iters", type=int, default=None, help="refinement iterations (default 60)")
     ap.add_argument(
         "--set",
         action="append",
