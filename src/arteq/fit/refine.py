@@ -61,7 +61,8 @@ class RefineConfig:
 
     iters: int = 60  # 40 before 2026-12-03 (experiments/fitting/converge.md)
     #: scan points the objective uses: a fixed random subset of each scan's when it has more (0: all);
-    #: half of a 5000-point scan converges as well for half the cost per iteration (converge.md)
+    #: half of a 5000-point scan converges as well; 60 iterations on it made whole fits about 7 % slower
+    #: than 40 on every point, every point at 60 would cost 40 % more refinement (converge.md)
     points: int = 2500
     sigma_start: float = 8.0  # cm
     sigma_end: float = 5.0  # cm; 1.0 before 2026-12-02 (experiments/fitting/README.md, section 1b)
