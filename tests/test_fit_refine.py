@@ -82,11 +82,12 @@ def test_refinement_recovers_the_body_from_a_perturbed_start(body, outliers):
     assert all(e < s / 4 for s, e in zip(starts, ends)), (starts, ends)
 
 
-def test_batched_refinement_matches_one_by_one(body):
+@pytest.mark.parametrize("subset", ["random", "fps"])
+def test_batched_refinement_matches_one_by_one(body, subset):
     """Scans are independent, also when the objective uses a subset of their points (``points``)."""
     rng = np.random.default_rng(3)
     scans = [synthetic_scan(body, "test_ood", i, 1000, offset=0.0) for i in range(2)]
-    cfg = RefineConfig(iters=6, points=600)
+    cfg = RefineConfig(iters=6, points=600, subset=subset)
     pts = torch.stack([torch.as_tensor(s["points"], dtype=torch.float32) for s in scans])
     inits = [perturbed_start(s, 0.0, rng) for s in scans]
     probs = torch.stack([noisy_probs(s["labels"], rng) for s in scans])
@@ -221,6 +222,8 @@ def test_refine_config_from_command_line_strings():
         RefineConfig.from_strings(["sigma=3"])
     with pytest.raises(ValueError, match="not of type int"):
         RefineConfig.from_strings(["iters=1.5"])
+    with pytest.raises(ValueError, match="subset must be random or fps"):
+        RefineConfig.from_strings(["subset=even"])
 
 
 def turned_truth(body, s, centre, turns):

@@ -140,6 +140,7 @@ def main() -> None:
     ap.add_argument("--defects", default=",".join(DEFECTS))
     ap.add_argument("--out", default=None, help="the Markdown tables")
     ap.add_argument("--json", default=None, help="every fit's record")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     defects = [d for d in a.defects.split(",") if d]
@@ -148,7 +149,9 @@ def main() -> None:
     t0 = time.time()
     people = People()
     faces = people.faces
-    fitter = Fitter(ckpt=a.ckpt, device="cpu", anny=False)
+    from arteq.fit.refine import RefineConfig
+
+    fitter = Fitter(ckpt=a.ckpt, device="cpu", anny=False, refine_config=RefineConfig.from_strings(a.set))
     kids = a.bodies // 2
     phens = people.sample(kids, (3.0, 12.0), 9100 + a.seed)
     phens += people.sample(a.bodies - kids, (18.0, 70.0), 9200 + a.seed)
@@ -181,7 +184,8 @@ def main() -> None:
              "Written by `experiments/fitting/scan_defects.py` (scans, defects and columns: its docstring):\n",
              "```", f"OMP_NUM_THREADS={a.threads} python experiments/fitting/scan_defects.py --ckpt {a.ckpt} "
              f"--bodies {a.bodies} --seed {a.seed} --threads {a.threads}"
-             + (f" --out {a.out}" if a.out else "") + (f" --json {a.json}" if a.json else ""), "```\n",
+             + (f" --out {a.out}" if a.out else "") + (f" --json {a.json}" if a.json else "")
+             + (f" --set {' '.join(a.set)}" if a.set else ""), "```\n",
              f"{a.bodies} bodies ({kids} children 3-12 y, {a.bodies - kids} adults 18-70 y), "
              f"{time.time() - t0:.0f} s in all; V2V usable at <= 3 cm.\n",
              "| defect | points | written (ok / uncertain) | refused | V2V mean / worst cm | usable | "

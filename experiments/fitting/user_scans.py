@@ -521,8 +521,12 @@ def run_people(a) -> None:
         if a.export_only:
             return
     cross = not a.no_crossing
-    fitter = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=True, crossing=cross)
-    other = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=False, seed=1, crossing=cross)
+    from arteq.fit.refine import RefineConfig
+
+    cfg = RefineConfig.from_strings(a.set)
+    fitter = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=True, crossing=cross, refine_config=cfg)
+    other = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=False, seed=1, crossing=cross,
+                   refine_config=cfg)  # fmt: skip
     records = []
     for s in scans:
         rec = fit_scan(fitter, s, other)
@@ -652,6 +656,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--export", default=None, help="people: write the children and clutter scans here (.npz)")
     ap.add_argument("--export-only", action="store_true", help="people: write them (--export) and stop")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="people: RefineConfig fields")
     ap.add_argument("--no-crossing", action="store_true",
                     help="people: without the crossed-limb step (arteq.fit.crossing, since 2026-12-03)")
     ap.add_argument("--n", type=int, default=6, help="frames: scans per case")

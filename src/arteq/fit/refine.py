@@ -3,8 +3,8 @@
 Start: a prediction (local rotations, betas, translation) and per-point part probabilities, e.g. the
 ArtEq network's. Parameters per scan: a residual rotation ``delta_k`` per joint (``theta_k =
 theta_k^start exp([delta_k])``, starting at 0), a translation offset and the betas. Objective per scan
-(centimetres squared; scans are summed, points averaged within a scan, so scans stay independent), on at
-most ``points`` of each scan's points (a fixed random subset):
+(centimetres squared; scans are summed, points averaged within a scan, so scans stay independent); the
+scan -> model term on at most ``points`` of each scan's points (farthest-point subset):
 
 * scan -> model: each point against the posed vertex it is matched to, point-to-plane plus ``w_p2p``
   times point-to-point, through a Geman-McClure kernel ``rho(r^2) = s^2 r^2 / (s^2 + r^2)`` whose scale
@@ -60,10 +60,13 @@ class RefineConfig:
     """Knobs of :func:`refine` (defaults measured in ``experiments/fitting/README.md``)."""
 
     iters: int = 60  # 40 before 2026-12-03 (experiments/fitting/converge.md)
-    #: scan points the objective uses: a fixed random subset of each scan's when it has more (0: all);
-    #: half of a 5000-point scan converges as well; 60 iterations on it made whole fits about 7 % slower
-    #: than 40 on every point, every point at 60 would cost 40 % more refinement (converge.md)
+    #: scan points the scan -> model term uses: a subset of each scan's when it has more (0: all); half of a
+    #: 5000-point scan converges as well; 60 iterations on it made whole fits about 7 % slower than 40 on
+    #: every point, every point at 60 would cost 40 % more refinement (converge.md)
     points: int = 2500
+    #: how: ``fps`` (farthest points from the centroid's nearest: dense regions thinned, sparse ones kept
+    #: whole) or ``random`` (a fixed random subset, which lost two fits of ~170 that every point kept)
+    subset: str = "fps"
     sigma_start: float = 8.0  # cm
     sigma_end: float = 5.0  # cm; 1.0 before 2026-12-02 (experiments/fitting/README.md, section 1b)
     w_p2p: float = 0.1
@@ -103,6 +106,8 @@ class RefineConfig:
     workers: int = 0
 
     def __post_init__(self) -> None:
+        if self.subset not in ("random", "fps"):
+            raise ValueError(f"subset must be random or fps, got {self.subset!r}")
         turn_joint_ids(self.twist_joints)  # a bad joint name fails here, not mid-fit
         for j in turn_joint_ids(self.swing_joints):
             if j not in PARENTS:
@@ -657,9 +662,13 @@ def refine(
     if probs.shape[:2] != (b, n):
         raise ValueError(f"refine: part_probs must be [{b}, {n}, K], got {tuple(probs.shape)}")
     scan = points  # the model -> scan term and the searches see every point
-    if 0 < cfg.points < n:  # the same seeded subset for every call: results do not depend on batching
-        keep = torch.randperm(n, generator=torch.Generator().manual_seed(0))[: cfg.points].sort().values
-        points, probs = points[:, keep.to(device)], probs[:, keep.to(device)]
+    if 0 < cfg.points < n:  # the same subset for every call: results do not depend on batching
+        if cfg.subset == "fps":
+            keep = fps_from_centroid(points.double(), cfg.points).sort(dim=1).values  # [B, points]
+            points, probs = _gather(points, keep), _gather(probs, keep)
+        else:
+            keep = torch.randperm(n, generator=torch.Generator().manual_seed(0))[: cfg.points].sort().values
+            points, probs = points[:, keep.to(device)], probs[:, keep.to(device)]
         n = cfg.points
     start_rot = init["local_rotmats"].detach().to(device=device, dtype=dtype)
     betas = init["betas"].detach().to(device=device, dtype=dtype).clone()
