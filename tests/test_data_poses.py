@@ -105,3 +105,24 @@ def test_id_ood_gap_positive_and_large():
     assert gap["ood_mean_deg"] > 3 * gap["id_mean_deg"]
     assert gap["ood_min_deg"] > gap["id_p95_deg"]
     assert gap["ood_mean_deg"] > 25
+
+
+def test_athletic_source_reaches_past_the_clinical_limits_and_stays_in_its_own():
+    from arteq.data.poses import ATHLETIC_LIMITS_DEG, JOINT_LIMITS_DEG, joint_limit_bounds
+
+    clinical = SyntheticOODPoses()
+    athletic = SyntheticOODPoses(limits=ATHLETIC_LIMITS_DEG)
+    assert SyntheticOODPoses(limits=JOINT_LIMITS_DEG).fingerprint() == clinical.fingerprint()
+    assert athletic.fingerprint() != clinical.fingerprint()
+    lo, hi = joint_limit_bounds()
+    alo, ahi = joint_limit_bounds(ATHLETIC_LIMITS_DEG)
+    assert (alo <= lo).all() and (ahi >= hi).all()  # a superset, mirrored on the right side alike
+    g = torch.Generator().manual_seed(3)
+    angles = torch.stack([athletic.euler(g) for _ in range(400)])
+    assert (angles >= alo - 1e-9).all() and (angles <= ahi + 1e-9).all()
+    up = JOINT_NAMES.index("left_shoulder"), JOINT_NAMES.index("right_shoulder")
+    elevation = angles[:, up[0], 2], -angles[:, up[1], 2]  # right side mirrored: y / z negated
+    for e in elevation:  # arms overhead beyond the clinical 95 degrees in a fair share of draws
+        assert 0.1 < (e > hi[up[0], 2] + 10).float().mean() < 0.5
+    hip = JOINT_NAMES.index("left_hip")
+    assert ((angles[:, hip, 2] > hi[hip, 2] + 10).float().mean()) > 0.1  # splits

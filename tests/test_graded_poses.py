@@ -146,3 +146,15 @@ def test_training_pose_mix_draws_each_source_at_its_weight_and_leaves_tests_alon
 def test_training_pose_mix_is_checked(toy_body, mix, match):
     with pytest.raises(ValueError, match=match):
         BodyScanDataModule(body_model=toy_body, train_pose_mix=mix)
+
+
+def test_athletic_training_source_is_the_ood_sampler_over_the_wider_range(toy_body):
+    from arteq.data.poses import ATHLETIC_LIMITS_DEG
+
+    mixed = BodyScanDataModule(body_model=toy_body, train_pose_mix={"id": 0.6, "athletic": 0.4}, cache=False)
+    src = mixed._sources("train")
+    want = SyntheticOODPoses(limits=ATHLETIC_LIMITS_DEG)
+    assert src.sources["athletic"].fingerprint() == want.fingerprint()
+    plain = BodyScanDataModule(body_model=toy_body, cache=False)
+    for split in ("val", *TEST_SPLITS):  # no test set draws from it
+        assert mixed._sources(split).fingerprint() == plain._sources(split).fingerprint()

@@ -61,6 +61,7 @@ from arteq.data.dataset import (
     TensorDictDataset,
 )
 from arteq.data.poses import (
+    ATHLETIC_LIMITS_DEG,
     ContactRejectedPoses,
     LimbOODPoses,
     MixedPoses,
@@ -86,7 +87,9 @@ GRADED_DEFAULT_SIZE = 128
 #: Sources a training pose mixture (``train_pose_mix``) may draw from: ``id`` = the configured training
 #: poses (synthetic everyday motions, widened by ``wide_poses``, or the AMASS training frames), the others
 #: the synthetic samplers of the OOD test sets (their own random streams: the test sets stay held out).
-TRAIN_MIX_SOURCES = ("id", "ood", "limb1", "limb2", "contact")
+#: ``athletic`` is the OOD sampler with a trained athlete's joint range (poses.ATHLETIC_LIMITS_DEG; training
+#: only, no test set draws from it).
+TRAIN_MIX_SOURCES = ("id", "ood", "limb1", "limb2", "contact", "athletic")
 
 
 class CorruptCacheError(RuntimeError):
@@ -418,6 +421,7 @@ class BodyScanDataModule(L.LightningDataModule):
                 "limb1": lambda: LimbOODPoses(1),
                 "limb2": lambda: LimbOODPoses(2),
                 "contact": lambda: ContactRejectedPoses(self.body),
+                "athletic": lambda: SyntheticOODPoses(limits=ATHLETIC_LIMITS_DEG),
             }
             mix = {k: w for k, w in self.train_pose_mix.items() if w > 0}
             return MixedPoses({k: named[k]() for k in mix}, mix)

@@ -18,7 +18,8 @@ forward -y, elbow flexion -y, hip abduction +z.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 import roma
@@ -328,7 +329,7 @@ def _widen(ang: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         r[J[name]] = torch.tensor(v, dtype=torch.float64)
     r = mirror_left_to_right(r).abs()
     u = torch.rand(NUM_JOINTS, 3, generator=generator, dtype=torch.float64) * 2 - 1
-    lo, hi = _limits_tensor()
+    lo, hi = joint_limit_bounds()
     out = ang + r * u
     moved = r > 0
     out[moved] = torch.minimum(torch.maximum(out, lo), hi)[moved]
@@ -356,6 +357,21 @@ JOINT_LIMITS_DEG: dict[str, tuple[tuple[float, float], tuple[float, float], tupl
     "left_wrist": ((-30, 30), (-30, 30), (-75, 75)),
 }
 
+#: A trained athlete's range (gymnasts, dancers): :data:`JOINT_LIMITS_DEG` with the spine, neck, hips, knees
+#: and shoulders opened up: a back bend through the spine, splits (hip abduction to 90, extension to 60),
+#: the arms overhead (elevation to 170) and behind the body. Chosen by hand from those poses' descriptions,
+#: not fitted to any test set; ``data.train_pose_mix``'s ``athletic`` source (docs/data.md).
+ATHLETIC_LIMITS_DEG: dict[str, tuple[tuple[float, float], tuple[float, float], tuple[float, float]]] = {
+    **JOINT_LIMITS_DEG,
+    "spine1": ((-35, 45), (-25, 25), (-25, 25)),
+    "spine2": ((-30, 40), (-25, 25), (-20, 20)),
+    "spine3": ((-30, 35), (-25, 25), (-20, 20)),
+    "neck": ((-60, 50), (-60, 60), (-40, 40)),
+    "left_hip": ((-150, 60), (-50, 50), (-35, 90)),
+    "left_knee": ((0, 160), (-10, 10), (-5, 5)),
+    "left_shoulder": ((-90, 90), (-135, 90), (-90, 170)),
+}
+
 #: Extreme templates mixed into the OOD draw (left side / central, degrees); the rest uniform in limits.
 OOD_TEMPLATES: dict[str, dict[str, tuple[float, float, float]]] = {
     "sit_on_floor": {"left_hip": (-95, 0, 15), "left_knee": (5, 0, 0), "spine1": (20, 0, 0)},
@@ -367,10 +383,13 @@ OOD_TEMPLATES: dict[str, dict[str, tuple[float, float, float]]] = {
 }
 
 
-def _limits_tensor() -> tuple[torch.Tensor, torch.Tensor]:
+def joint_limit_bounds(limits: Mapping[str, Any] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-joint Euler bounds ``lo, hi [22, 3]`` (degrees) of ``limits`` (default
+    :data:`JOINT_LIMITS_DEG`; left side and central joints), the right side mirrored; the root's are 0
+    (it has none)."""
     lo = torch.zeros(NUM_JOINTS, 3, dtype=torch.float64)
     hi = torch.zeros(NUM_JOINTS, 3, dtype=torch.float64)
-    for name, lims in JOINT_LIMITS_DEG.items():
+    for name, lims in (JOINT_LIMITS_DEG if limits is None else limits).items():
         for ax, (a, b) in enumerate(lims):
             lo[J[name], ax], hi[J[name], ax] = a, b
     # mirror: x kept, y/z negated (bounds swap)
@@ -381,7 +400,8 @@ def _limits_tensor() -> tuple[torch.Tensor, torch.Tensor]:
 
 
 class SyntheticOODPoses(PoseSource):
-    """Out-of-distribution poses: per-joint Euler angles across :data:`JOINT_LIMITS_DEG`, Haar-uniform root.
+    """Out-of-distribution poses: per-joint Euler angles across ``limits`` (default :data:`JOINT_LIMITS_DEG`;
+    :data:`ATHLETIC_LIMITS_DEG` for the ``athletic`` training source), Haar-uniform root.
 
     With probability ``template_prob`` one or two of :data:`OOD_TEMPLATES` (each applied to a random side
     or both) set their joints, jittered by ``U(-15, 15)`` degrees and clipped to the limits; all other
@@ -398,12 +418,14 @@ class SyntheticOODPoses(PoseSource):
         min_gap_deg: float = 15.0,
         id_bank_size: int = 512,
         id_source: SyntheticIDPoses | None = None,
+        limits: Mapping[str, Any] | None = None,
     ) -> None:
         self.template_prob = template_prob
         self.min_gap_deg = min_gap_deg
         self.id_bank_size = id_bank_size
         self.id_source = SyntheticIDPoses() if id_source is None else id_source
-        self.lo, self.hi = _limits_tensor()
+        self.limits = JOINT_LIMITS_DEG if limits is None else dict(limits)
+        self.lo, self.hi = joint_limit_bounds(self.limits)
         self.num_poses = None
         self._bank: torch.Tensor | None = None
 
@@ -414,7 +436,7 @@ class SyntheticOODPoses(PoseSource):
             "min_gap_deg": self.min_gap_deg,
             "id_bank_size": self.id_bank_size,
             "id": self.id_source.fingerprint(),
-            "limits": JOINT_LIMITS_DEG,
+            "limits": self.limits,
             "version": 1,
         }
 
