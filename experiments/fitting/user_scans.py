@@ -12,9 +12,12 @@ orientation, a 2 m offset, fitted by ``arteq.fit.Fitter`` with the defaults of `
 clutter removal, the calibrated check; the Anny export on, timed apart).
 
 - Ground truth: an Anny phenotype (anny's ``SimpleShapeDistribution`` at the group's ages, or a stated
-  build), its T-posed mesh projected on the ``anny_allages`` body's 16 components (0.4-0.9 mm, the body for
-  every age; experiments/body/README.md) and posed by that body's rig; its joints; its stature and waist
-  circumference from anny's anthropometry of the true phenotype (Anny's rest pose).
+  build), its T-posed mesh projected on all 32 stored components of the ``anny_allages`` body (0.1 mm from
+  it: the phenotype's own mesh) and posed by that body's rig; its joints; its stature and waist
+  circumference from anny's anthropometry of the true phenotype (Anny's rest pose). Before 2026-12-03 the
+  projection was on the 16 components the model uses (``--truth-betas 16``): 0.4-0.9 mm off, 2.6 mm for the
+  very thin build, whose scanned mesh was then 3.4 cm wider at the waist than its stated truth
+  (experiments/fitting/shape_betas.md).
 - Groups: ``acrobatic`` (the 12 templates of check_calibration.py: handstand, splits, backbend, cartwheel,
   ... on an average adult, a heavy short body, a tall lean body and a child, in turn, any orientation);
   ``children`` (ages 3-12, everyday templates); ``adults`` (ages 18-70: the sampler's own builds, its
@@ -47,6 +50,9 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+#: Components of anny_allages the scanned meshes are projected on (module docstring, "Ground truth").
+TRUTH_BETAS = 32
 
 #: The 15 joints of the joint error (names of arteq.body.skeleton.JOINT_NAMES).
 JOINTS_15 = ("pelvis", "neck", "head", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
@@ -195,11 +201,12 @@ class Scan:
 class People:
     """Ground-truth bodies: Anny phenotypes -> anny_allages betas -> posed meshes and measurements."""
 
-    def __init__(self) -> None:
+    def __init__(self, truth_betas: int | None = TRUTH_BETAS) -> None:
         from arteq.body import load_body_model
         from arteq.fit.anny_params import AnnyExport
 
-        self.body = load_body_model("anny_allages").double()
+        # the scanned meshes: the phenotype's Anny mesh projected on this many of anny_allages' components
+        self.body = load_body_model("anny_allages", num_betas=truth_betas).double()
         self.ex = AnnyExport(self.body)
         self.faces = self.body.faces.numpy()
         sd = self.body.shapedirs.reshape(-1, self.body.num_betas)
@@ -261,11 +268,13 @@ def stated_builds(people: People, seed: int) -> dict[str, torch.Tensor]:
     }
 
 
-def people_scans(seed: int = 0, n_children: int = 8, n_adults: int = 4, n_clutter: int = 3) -> list[Scan]:
-    """The ``people`` suite's labelled scans (see the module docstring)."""
+def people_scans(
+    seed: int = 0, n_children: int = 8, n_adults: int = 4, n_clutter: int = 3, truth_betas: int = TRUTH_BETAS
+) -> list[Scan]:
+    """The ``people`` suite's labelled scans (see the module docstring; ``truth_betas``: :class:`People`)."""
     from check_calibration import ACROBATIC
 
-    people = People()
+    people = People(truth_betas)
     faces = people.faces
     rng = np.random.default_rng(seed)
     scans: list[Scan] = []
@@ -509,7 +518,7 @@ def run_people(a) -> None:
     from arteq.fit import Fitter
 
     t0 = time.perf_counter()
-    scans = people_scans(a.seed)
+    scans = people_scans(a.seed, truth_betas=a.truth_betas)
     t_make = time.perf_counter() - t0
     if a.export:
         out = Path(a.export)
@@ -524,9 +533,11 @@ def run_people(a) -> None:
     from arteq.fit.refine import RefineConfig
 
     cfg = RefineConfig.from_strings(a.set)
-    fitter = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=True, crossing=cross, refine_config=cfg)
-    other = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=False, seed=1, crossing=cross,
-                   refine_config=cfg)  # fmt: skip
+    kw = dict(
+        ckpt=a.ckpt, device="cpu", points=5000, crossing=cross, refine_config=cfg, shape_betas=a.shape_betas
+    )
+    fitter = Fitter(anny=True, **kw)
+    other = Fitter(anny=False, seed=1, **kw)
     records = []
     for s in scans:
         rec = fit_scan(fitter, s, other)
@@ -657,8 +668,18 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--export-only", action="store_true", help="people: write them (--export) and stop")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="people: RefineConfig fields")
-    ap.add_argument("--no-crossing", action="store_true",
-                    help="people: without the crossed-limb step (arteq.fit.crossing, since 2026-12-03)")
+    ap.add_argument("--shape-betas", type=int, default=None, help="people: Fitter(shape_betas=...)")
+    ap.add_argument(
+        "--truth-betas",
+        type=int,
+        default=None,
+        help="people: components of the scanned meshes (default 16; 32: the phenotype's mesh)",
+    )
+    ap.add_argument(
+        "--no-crossing",
+        action="store_true",
+        help="people: without the crossed-limb step (arteq.fit.crossing, since 2026-12-03)",
+    )
     ap.add_argument("--n", type=int, default=6, help="frames: scans per case")
     ap.add_argument("--no-refine", action="store_true", help="frames: the network alone")
     ap.add_argument("--cases", default="", help="frames: comma-separated substrings of the case names to run")

@@ -395,6 +395,10 @@ class Fitter:
         denoise_above_mm: a full scan whose noise (:func:`arteq.fit.conditions.scan_conditions`) is above
             this reaches the network smoothed (:func:`arteq.fit.conditions.denoise`; the refinement and the
             check use the raw points); ``None``: never (experiments/fitting/scan_defects.md).
+        shape_betas: shape coefficients the refinement fits (and the fit's ``betas`` hold): ``None``
+            (default) the network's own count; more (up to what the body's file stores: ``anny_allages``
+            32) adds components the network does not predict, started at 0 and fitted to the scan
+            (experiments/fitting/shape_betas.md).
     """
 
     def __init__(
@@ -417,6 +421,7 @@ class Fitter:
         crossing: CrossingConfig | bool = True,
         second_start: str | Path | bool | None = None,
         denoise_above_mm: float | None = 10.0,
+        shape_betas: int | None = None,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
 
@@ -448,7 +453,7 @@ class Fitter:
                 f"{self.ckpt_path}: cannot load the checkpoint ({type(exc).__name__}: {exc})"
             ) from exc
         self.module = module.eval().to(self.device)
-        self.body = self.module.body
+        self.body = self._shape_body(shape_betas)
         data = dict(self.module.hparams.get("data") or {})
         self.net_points = int(data.get("num_points") or 5000)
         digest = hashlib.sha256(self.ckpt_path.read_bytes()).hexdigest()[:12]
@@ -478,6 +483,28 @@ class Fitter:
                 if anny:
                     raise
                 self.anny_note = f"off: {exc}"
+
+    def _shape_body(self, shape_betas: int | None) -> torch.nn.Module:
+        """The body the refinement fits: the network's, or the same body with ``shape_betas`` components
+        (the network's betas are padded with zeros: :meth:`_network`)."""
+        from arteq.body.factory import create_body
+
+        own = self.module.body
+        if shape_betas is None or int(shape_betas) == own.num_betas:
+            return own
+        if int(shape_betas) < own.num_betas:
+            raise ValueError(
+                f"shape_betas={shape_betas}: fewer than the {own.num_betas} the network predicts "
+                f"({self.ckpt_path.name})"
+            )
+        spec = {**dict(self.module.hparams.get("body_model") or {}), "num_betas": int(shape_betas)}
+        try:
+            body = create_body(spec)
+        except ValueError as exc:
+            raise ValueError(f"shape_betas={shape_betas}: {exc}") from exc
+        for p in body.parameters():
+            p.requires_grad_(False)
+        return body.to(self.device)
 
     def _second_network(self, spec: str | Path | bool | None) -> tuple[Any, str | None]:
         """The second start's network (:class:`FitNetwork`) and name, or ``(None, None)``; see the class
@@ -583,6 +610,9 @@ class Fitter:
             net_in.append(resample(src, self.net_points, rng))
             ref_in.append(resample(it["centred"], self.points, rng))
         pred = self._network(net_in)
+        extra = self.body.num_betas - pred["betas"].shape[-1]
+        if extra > 0:  # shape_betas: the components the network does not predict start at 0
+            pred["betas"] = torch.nn.functional.pad(pred["betas"], (0, extra))
         probs_net = pred["part_probs"].float().cpu().numpy()  # (waits for a GPU)
         trees = [cKDTree(p) for p in net_in]
         near = [trees[i].query(ref_in[i])[1] for i in range(len(items))]  # each point's network point

@@ -43,6 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
         dest="refine_set",
         help="a refinement setting (arteq.fit.refine.RefineConfig), e.g. --set swing_at=-1; repeatable",
     )
+    ap.add_argument("--shape-betas", type=int, default=None, metavar="N",
+                    help="shape coefficients the refinement fits (default: the network's; anny_allages "
+                         "stores 32)")  # fmt: skip
     ap.add_argument("--preview", action=argparse.BooleanOptionalAction, default=True, help="write <name>.png")
     ap.add_argument("--overwrite", action="store_true", help="replace existing outputs (else skip them)")
     ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
@@ -104,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
         fitter = Fitter(ckpt=args.ckpt, device=args.device, refine=args.refine, points=args.points,
                         refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny,
                         strict=args.strict, partial=args.partial, view_dir=args.view_dir,
-                        crossing=args.crossing, second_start=args.second_start)  # fmt: skip
+                        crossing=args.crossing, second_start=args.second_start,
+                        shape_betas=args.shape_betas)  # fmt: skip
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"arteq-fit: {exc}", file=sys.stderr)
         return 2
