@@ -1,18 +1,21 @@
-"""A scan-model training cycle sized to a fixed wall-clock budget on a GPU machine (one call of the device tool).
+"""A scan-model training cycle sized to a wall-clock budget on a GPU machine (one call of the device tool).
 
-    python experiments/scan_model/gpu_run.py --budget 400 --out $OUT [--batch 8 16 32] [--probe-only] [-- OVERRIDES]
+    python experiments/scan_model/gpu_run.py --budget 400 --out $OUT [--batch 8 16 32] [--probe-only] \
+        [OVERRIDES]
 
-1. Probe: the run's own config (the overrides of ``RUN7`` plus any after ``--``) on the GPU: seconds per training
-   step (forward, losses, backward, Adam; one fixed batch, after warm-up) at each ``--batch`` size, and seconds
-   per training cloud made by one data worker.
-2. Pick the batch size with the most clouds per second, counting the data workers (all cores but one) as a
-   limit, and the number of steps that fills ``--budget`` seconds at 85 % of the probed rate.
-3. Train that many steps with ``python -m arteq.train`` (a cosine cycle over exactly those steps), then copy the
-   last checkpoint, the metrics CSV, the log and ``gpu_run.json`` (probe, choice, wall times) to ``--out``.
+1. Probe: the run's own config (the overrides of ``RUN7`` plus any given) on the GPU: seconds per
+   training step (forward, losses, backward, Adam; one fixed batch, after warm-up) at each ``--batch``
+   size, and seconds per training cloud made by one data worker.
+2. Pick the batch size with the most clouds per second, counting the data workers (all cores but one) as
+   a limit, and the number of steps that fills ``--budget`` seconds at 85 % of the probed rate.
+3. Train that many steps with ``python -m arteq.train`` (a cosine cycle over exactly those steps), then
+   copy the last and best checkpoints, the metrics CSV, the log and ``gpu_run.json`` (probe, choice, wall
+   times) to ``--out``.
 
-The all-ages body and the fixed sets are read from ``$ARTEQ_CACHE_DIR`` (carry a prebuilt cache: the GPU machine
-has no ``anny``). Validation runs at each epoch end on the cached validation set; test sets are left to a CPU run
-of ``python -m arteq.eval`` on the returned checkpoint.
+The all-ages body and the fixed sets are read from ``$ARTEQ_CACHE_DIR`` (carry a prebuilt cache: the GPU
+machine has no ``anny``). Validation runs at each epoch end on the cached validation set; test sets are
+left to a CPU run of ``python -m arteq.eval`` on the returned checkpoint. ``--device cpu`` checks the
+whole script here (tiny ``--budget``); experiments/scan_model/README.md, gpu7, has the calls.
 """
 
 from __future__ import annotations
@@ -53,7 +56,8 @@ def probe(overrides: list[str], batches: list[int], steps: int, device: str) -> 
     from arteq.training.build import build_datamodule, build_module
 
     with initialize_config_dir(version_base="1.3", config_dir=CONF):
-        cfg = compose("train", overrides=[*overrides, "data.num_workers=0", f"data.batch_size={max(batches)}"])
+        extra = ["data.num_workers=0", f"data.batch_size={max(batches)}"]
+        cfg = compose("train", overrides=[*overrides, *extra])
     torch.manual_seed(0)
     dm = build_datamodule(cfg)
     dm.setup("fit")
@@ -95,9 +99,9 @@ def main() -> None:
     ap.add_argument("--run", type=Path, default=ROOT / ".gpu" / "run7")
     ap.add_argument("--init", default="experiments/pretrained/scan_run5_resume.ckpt")
     ap.add_argument("--lr", type=float, default=3e-4)
-    ap.add_argument("--epochs", type=int, default=6, help="epochs the steps are split into (one checkpoint each)")
+    ap.add_argument("--epochs", type=int, default=6, help="epochs of the cycle (one checkpoint each)")
     ap.add_argument("--probe-only", action="store_true")
-    ap.add_argument("--device", default="cuda", help="cpu: check the script here (probe only)")
+    ap.add_argument("--device", default="cuda", help="cpu: check the script here")
     ap.add_argument("--probe-steps", type=int, default=8)
     ap.add_argument("overrides", nargs="*")
     a = ap.parse_args()
@@ -106,7 +110,9 @@ def main() -> None:
     workers = max(1, (os.cpu_count() or 2) - 1)
     report: dict = {
         "device": torch.cuda.get_device_name(0) if a.device == "cuda" else "cpu",
-        "torch": torch.__version__, "workers": workers}
+        "torch": torch.__version__,
+        "workers": workers,
+    }
     overrides = [*RUN7, *a.overrides]
     report["probe"] = p = probe(overrides, a.batch, a.probe_steps, a.device)
     report["probe_wall_s"] = time.time() - t0
