@@ -492,6 +492,8 @@ def test_shipped_model_end_to_end(body, tmp_path):
     z = np.load(tmp_path / "fits" / "scan.npz")
     assert z["vertices"].shape == s["vertices"].shape and f"{DEFAULT_MODEL}.ckpt" in str(z["checkpoint"])
     assert str(z["status"]) == "ok"
+    # the default model's body (anny_allages) is fitted on all 32 stored shape components, not its 16
+    assert z["betas"].shape == (32,), z["betas"].shape
     # in the file's frame and units; measured 1.91 cm with anny_scan, 1.15 with anny22 (network + refinement)
     v2v_cm = np.linalg.norm(z["vertices"] / 1000.0 - (s["vertices"] @ z_up.T + off), axis=1).mean() * 100
     print(f"shipped model end to end: V2V {v2v_cm:.2f} cm")

@@ -38,6 +38,10 @@ from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_
 STATUSES = ("ok", "uncertain", "not_single_body", "refused", "error", "skipped")
 #: the second start of a model on the all-ages body (:class:`Fitter`'s ``second_start``)
 SECOND_START = "anny22"
+#: Shape coefficients the refinement fits by default, per body name (:class:`Fitter`'s ``shape_betas``):
+#: all 32 that ``anny_allages`` stores, so that a build outside the network's 16 (a very thin waist: 3.4 cm
+#: off at 16) is measured right (experiments/fitting/shape_betas.md); other bodies: the network's own.
+DEFAULT_SHAPE_BETAS = {"anny_allages": 32}
 #: When the two starts of a scan stop being refined together: at each ``(fraction of the iterations,
 #: margin)``, the start whose surface score exceeds the other's by more than the margin stops there
 #: (at 0.6 the worse one always does), so most scans refine one start for most of the iterations
@@ -396,9 +400,10 @@ class Fitter:
             this reaches the network smoothed (:func:`arteq.fit.conditions.denoise`; the refinement and the
             check use the raw points); ``None``: never (experiments/fitting/scan_defects.md).
         shape_betas: shape coefficients the refinement fits (and the fit's ``betas`` hold): ``None``
-            (default) the network's own count; more (up to what the body's file stores: ``anny_allages``
-            32) adds components the network does not predict, started at 0 and fitted to the scan
-            (experiments/fitting/shape_betas.md).
+            (default) the body's entry in :data:`DEFAULT_SHAPE_BETAS` (``anny_allages``: all 32 it stores),
+            else the network's own count; more than the network's (up to what the body's file stores) adds
+            components the network does not predict, started at 0 and fitted to the scan; the network's own
+            count fits only those (experiments/fitting/shape_betas.md).
     """
 
     def __init__(
@@ -490,7 +495,9 @@ class Fitter:
         from arteq.body.factory import create_body
 
         own = self.module.body
-        if shape_betas is None or int(shape_betas) == own.num_betas:
+        if shape_betas is None:
+            shape_betas = DEFAULT_SHAPE_BETAS.get(getattr(own, "name", ""), own.num_betas)
+        if int(shape_betas) == own.num_betas:
             return own
         if int(shape_betas) < own.num_betas:
             raise ValueError(

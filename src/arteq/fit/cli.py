@@ -44,8 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="a refinement setting (arteq.fit.refine.RefineConfig), e.g. --set swing_at=-1; repeatable",
     )
     ap.add_argument("--shape-betas", type=int, default=None, metavar="N",
-                    help="shape coefficients the refinement fits (default: the network's; anny_allages "
-                         "stores 32)")  # fmt: skip
+                    help="shape coefficients the refinement fits (default: all 32 for the anny_allages body "
+                         "of the default model, the network's own otherwise)")  # fmt: skip
     ap.add_argument("--preview", action=argparse.BooleanOptionalAction, default=True, help="write <name>.png")
     ap.add_argument("--overwrite", action="store_true", help="replace existing outputs (else skip them)")
     ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
