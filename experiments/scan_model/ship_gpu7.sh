@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Ship gpu7's cycle-2 weights as `anny_scan` (2026-12-04; experiments/scan_model/README.md, gpu7): weights and
+# card from the committed resumable checkpoint and its committed arteq.eval metrics.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+OMP_NUM_THREADS=2 .venv/bin/python -m arteq.pretrained.card export experiments/pretrained/scan_gpu7_resume.ckpt \
+ --name anny_scan --metrics-from experiments/scan_model/gpu7/cycle2_test_metrics.json \
+ --command "nohup bash experiments/scan_model/run.sh > outputs/scan_model/run3.log 2>&1 &   (run3: 7000 steps, CPU, from anny22_local; resumed across sessions)" \
+ --command "bash experiments/scan_model/run4.sh; bash experiments/scan_model/run5.sh   (run4, run5: 3000 steps each, CPU, lr 3e-4 cosine; experiments/scan_model/README.md)" \
+ --command "python3 experiments/scan_model/gpu_run.py --budget 360 --out \$OUT   (gpu7 cycle 1 on an H200: 1272 steps of 32 clouds from run5's final weights, lr 3e-4 cosine, the athletic pose mix)" \
+ --command "python3 experiments/scan_model/gpu_run.py --budget 330 --batch 32 --init .gpu/cycle1.ckpt --lr 1.5e-4 --out \$OUT seed=1 data.train_epoch_offset=6   (gpu7 cycle 2: 1776 steps of 32 clouds)" \
+ --command "python -m arteq.eval ckpt_path=outputs/gpu/cycle2/last.ckpt body_model=anny_allages data.shape_prior=allages data.augment=so3 data.eval_augment=so3 data.wide_poses=0.5 'data.view_splits=[front,side,back,top]'   (the test metrics below)" \
+ --training "stage 2 in five cosine cycles: run3 7000 steps (batch 8, lr 1e-3, from the research model anny22_local's weights, its shape head's output layer fresh: 16 betas here), run4 and run5 3000 steps each (batch 8, lr 3e-4; run5 with half single views), then on a GPU cycle 1 1272 steps and cycle 2 1776 steps (batch 32, lr 3e-4 and 1.5e-4), 500 points throughout; the all-ages body and shapes; any orientation; half the clouds single-view depth scans (a quarter in run3 and run4); training poses: everyday (half widened) 40 %, the hard OOD sampler 20 % (40 % before the GPU cycles), an athlete's joint range 20 % (GPU cycles), everyday with one / two OOD limbs 10 % / 10 %. About 98 000 training clouds on the GPU after about 104 000 on the CPU (experiments/scan_model/README.md)." \
+ --hardware "run3-run5: 2-core AMD EPYC / Intel Xeon VMs, torch 2.13.0+cpu, one or two threads; the GPU cycles: one NVIDIA H200, torch 2.11.0+cu130, fp32, 15 data workers (8.4 minutes of training)" \
+ --notes "The scan-fitting model (issue 19): the part-local network (model=arteq_local) on the all-ages body (children to elderly, extreme builds), trained on every pose sampler of the project and on single-view scans. Held out: the test sets (own seeds), the user-scan suite's acrobatic templates and bodies (experiments/fitting/user_scans.py), the single-view test sets. The mix contains the samplers of test_ood, test_ood_limb1 and test_ood_limb2: those are seen distributions for this model (new poses, not new kinds of pose). Before 2026-12-04 anny_scan was run3 alone (its records: experiments/scan_model/final/)."
