@@ -137,24 +137,52 @@ def test_build_without_anny_says_what_to_install(tmp_path, monkeypatch):
 
 
 def test_checkpoint_records_its_body(small_allages, tmp_path, tiny_net):
-    """A model trained on anny_allages reloads with anny_allages (16 betas); an anny22 one with anny22."""
+    """A model trained on anny_allages reloads with anny_allages (16 betas; the fit refines all 32 the file
+    stores by default); an anny22 one with anny22 (10, the fit too)."""
     import lightning
 
     from arteq.fit.api import Fitter
     from arteq.training.module import ArtEqModule
 
-    for spec, name, nb in (
-        ({"name": "anny_allages", "model_path": str(small_allages)}, "anny_allages", 16),
-        ({"name": "anny22"}, "anny22", 10),  # what every existing checkpoint records
+    for spec, name, nb, fit_nb in (
+        ({"name": "anny_allages", "model_path": str(small_allages)}, "anny_allages", 16, 32),
+        ({"name": "anny22"}, "anny22", 10, 10),  # what every existing checkpoint records
     ):
         m = ArtEqModule(net=tiny_net, body_model=spec, data={"num_points": 200})
         path = tmp_path / f"{name}.ckpt"
         torch.save({"state_dict": m.state_dict(), "hyper_parameters": dict(m.hparams),
                     "pytorch-lightning_version": lightning.__version__}, path)  # fmt: skip
         f = Fitter(ckpt=path, device="cpu")
-        assert f.body.name == name and f.body.num_betas == nb
+        assert f.module.body.name == name and f.module.body.num_betas == nb
+        assert f.body.name == name and f.body.num_betas == fit_nb
+        assert Fitter(ckpt=path, device="cpu", shape_betas=nb).body.num_betas == nb
         with torch.no_grad():
             assert f.module(torch.randn(1, 200, 3))["betas"].shape == (1, nb)
+
+
+def test_fit_default_shape_betas_follow_what_the_file_stores(anny_env, tmp_path, tiny_net):
+    """An all-ages file that stores only the network's 16 components: the fit's default falls back to them
+    with a warning naming the checkpoint; asking for 32 explicitly is an error."""
+    import dataclasses
+
+    import lightning
+
+    from arteq.body import anny_allages, anny_rig
+    from arteq.fit.api import Fitter
+    from arteq.training.module import ArtEqModule
+
+    spec = dataclasses.replace(anny_allages.spec(num_samples=64), num_stored_betas=16)
+    body_path = anny_rig.build_anny_body(spec, tmp_path / "allages16.npz", verbose=False)
+    m = ArtEqModule(net=tiny_net, body_model={"name": "anny_allages", "model_path": str(body_path)},
+                    data={"num_points": 200})  # fmt: skip
+    path = tmp_path / "net.ckpt"
+    torch.save({"state_dict": m.state_dict(), "hyper_parameters": dict(m.hparams),
+                "pytorch-lightning_version": lightning.__version__}, path)  # fmt: skip
+    with pytest.warns(UserWarning, match="net.ckpt: fitting the network's 16 shape components"):
+        f = Fitter(ckpt=path, device="cpu", anny=False)
+    assert f.body is f.module.body and f.body.num_betas == 16
+    with pytest.raises(ValueError, match="shape_betas=32"):
+        Fitter(ckpt=path, device="cpu", anny=False, shape_betas=32)
 
 
 @pytest.mark.slow

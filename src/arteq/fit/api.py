@@ -495,7 +495,8 @@ class Fitter:
         from arteq.body.factory import create_body
 
         own = self.module.body
-        if shape_betas is None:
+        default = shape_betas is None
+        if default:
             shape_betas = DEFAULT_SHAPE_BETAS.get(getattr(own, "name", ""), own.num_betas)
         if int(shape_betas) == own.num_betas:
             return own
@@ -508,6 +509,12 @@ class Fitter:
         try:
             body = create_body(spec)
         except ValueError as exc:
+            if default:  # a body file that stores fewer components than the default: the network's own
+                import warnings
+
+                warnings.warn(f"{self.ckpt_path.name}: fitting the network's {own.num_betas} shape "
+                              f"components ({exc})", stacklevel=3)  # fmt: skip
+                return own
             raise ValueError(f"shape_betas={shape_betas}: {exc}") from exc
         for p in body.parameters():
             p.requires_grad_(False)
