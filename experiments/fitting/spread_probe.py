@@ -7,7 +7,9 @@ another seed already moves 0.8 cm on average).
 The user suite's clutter scans without their clutter (seed 0, every other one), fitted by the shipped model
 with ``Fitter(seed=0, 1, 2)``: V2V of each fit to the truth, the mean vertex distance between the seed-0 fit
 and the others, which start won, and the share of that spread (cm, summed over a part's vertices divided by
-all vertices) of the five parts that carry most of it (parts: each vertex's strongest skinning joint).
+all vertices) of the five parts that carry most of it (parts: each vertex's strongest skinning joint); the
+angle between the seed-0 fit's local neck and head rotations and the others'; and the head's spread with the
+seed-0 pose and each fit's own shape (how much of it is shape).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def main() -> None:
+    import roma
     import user_scans as us
 
     from arteq.body.skeleton import JOINT_NAMES
@@ -42,6 +45,19 @@ def main() -> None:
         mean = (d[0] + d[1]) / 2
         share = sorted(((mean[part == j].sum() / len(mean), JOINT_NAMES[j]) for j in np.unique(part)), reverse=True)
         print("    spread by part (cm): " + ", ".join(f"{n} {x:.2f}" for x, n in share[:5]))
+        rot = [roma.rotvec_to_rotmat(torch.as_tensor(r.pose_aa)) for r in res]
+        for name in ("neck", "head"):
+            j = JOINT_NAMES.index(name)
+            ang = [float(roma.rotmat_geodesic_distance(rot[0][j], q[j])) * 180 / np.pi for q in rot[1:]]
+            print(f"    {name} local rotation, seed 0 to 1 / 2: {ang[0]:.1f} / {ang[1]:.1f} deg")
+        body, hv = fitters[0].body, part == JOINT_NAMES.index("head")
+        with torch.no_grad():
+            own = [body(betas=torch.as_tensor(r.betas)[None].to(body.v_template.dtype),
+                        pose=rot[0][None].to(body.v_template.dtype)).vertices[0].numpy() for r in res]  # fmt: skip
+        by_shape = [np.linalg.norm(own[0][hv] - v[hv], axis=1).mean() * 100 for v in own[1:]]
+        whole = [np.linalg.norm(res[0].vertices[hv] - r.vertices[hv], axis=1).mean() * 100 for r in res[1:]]
+        print(f"    head vertices, seed 0 to 1 / 2: {whole[0]:.2f} / {whole[1]:.2f} cm; with seed 0's pose "
+              f"(shape alone): {by_shape[0]:.2f} / {by_shape[1]:.2f} cm")  # fmt: skip
 
 
 if __name__ == "__main__":
