@@ -17,7 +17,9 @@ clutter removal, the calibrated check; the Anny export on, timed apart).
   circumference from anny's anthropometry of the true phenotype (Anny's rest pose). Before 2026-12-03 the
   projection was on the 16 components the model uses (``--truth-betas 16``): 0.4-0.9 mm off, 2.6 mm for the
   very thin build, whose scanned mesh was then 3.4 cm wider at the waist than its stated truth
-  (experiments/fitting/shape_betas.md).
+  (experiments/fitting/shape_betas.md). Until 2026-12-04 the command line still passed 16 (its
+  ``--truth-betas`` defaulted to the body's own count): every run of this script from the command line
+  before then scanned 16-component meshes.
 - Groups: ``acrobatic`` (the 12 templates of check_calibration.py: handstand, splits, backbend, cartwheel,
   ... on an average adult, a heavy short body, a tall lean body and a child, in turn, any orientation);
   ``children`` (ages 3-12, everyday templates); ``adults`` (ages 18-70: the sampler's own builds, its
@@ -672,8 +674,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--truth-betas",
         type=int,
-        default=None,
-        help="people: components of the scanned meshes (default 16; 32: the phenotype's mesh)",
+        default=TRUTH_BETAS,
+        help=f"people: components of the scanned meshes (default {TRUTH_BETAS}: the phenotype's own mesh; "
+        "16: the suite before 2026-12-03, and every command-line run before 2026-12-04)",
     )
     ap.add_argument(
         "--no-crossing",
