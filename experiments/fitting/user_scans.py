@@ -208,7 +208,9 @@ class People:
         from arteq.fit.anny_params import AnnyExport
 
         # the scanned meshes: the phenotype's Anny mesh projected on this many of anny_allages' components
-        self.body = load_body_model("anny_allages", num_betas=truth_betas).double()
+        # (None: TRUTH_BETAS, not the body's default 16, which is how the command line lost the truth)
+        nb = TRUTH_BETAS if truth_betas is None else int(truth_betas)
+        self.body = load_body_model("anny_allages", num_betas=nb).double()
         self.ex = AnnyExport(self.body)
         self.faces = self.body.faces.numpy()
         sd = self.body.shapedirs.reshape(-1, self.body.num_betas)
