@@ -45,21 +45,29 @@ class OracleFitter(CentreKeepingFitter):
 
     @torch.no_grad()
     def _network(self, clouds):
+        """One scan's draws (``net_draws``): noisy labels per draw, the same perturbed pose for all."""
         s, c = self.truth, self._centre
         rng = np.random.default_rng(0)
-        pts = clouds[0]
         from scipy.spatial import cKDTree
 
-        d, vi = cKDTree(s["vertices"] - c).query(pts)
-        lab = self.vertex_parts[vi]
-        lab = np.where((d > 0.05) | (rng.random(len(lab)) < 0.2), rng.integers(0, 22, len(lab)), lab)
-        probs = np.eye(22)[lab] * 0.7 + 0.3 / 22
+        tree = cKDTree(s["vertices"] - c)
+
+        def probs_of(pts):
+            d, vi = tree.query(pts)
+            lab = self.vertex_parts[vi]
+            lab = np.where((d > 0.05) | (rng.random(len(lab)) < 0.2), rng.integers(0, 22, len(lab)), lab)
+            return np.eye(22)[lab] * 0.7 + 0.3 / 22
+
+        first = probs_of(clouds[0])
         pert = roma.rotvec_to_rotmat(torch.as_tensor(rng.normal(0, 0.1 / 3**0.5, (1, 22, 3))))
+        betas = torch.as_tensor(s["betas"] + rng.normal(0, 0.3, 10), dtype=torch.float32)[None]
+        probs = np.stack([first] + [probs_of(p) for p in clouds[1:]])
+        k = len(clouds)
         return {
-            "part_probs": torch.as_tensor(probs, dtype=torch.float32)[None],
-            "local_rotmats": (torch.as_tensor(s["pose"])[None] @ pert).float(),
-            "betas": torch.as_tensor(s["betas"] + rng.normal(0, 0.3, 10), dtype=torch.float32)[None],
-            "transl": torch.as_tensor(s["transl"] - c + [0.02, 0, 0], dtype=torch.float32)[None],
+            "part_probs": torch.as_tensor(probs, dtype=torch.float32),
+            "local_rotmats": (torch.as_tensor(s["pose"])[None] @ pert).float().expand(k, -1, -1, -1),
+            "betas": betas.expand(k, -1),
+            "transl": torch.as_tensor(s["transl"] - c + [0.02, 0, 0], dtype=torch.float32).expand(k, -1),
         }
 
 

@@ -159,14 +159,15 @@ def test_the_fitter_uncrosses_a_crossed_scan_and_says_so(body, scene, tmp_path, 
 
     class Uncrossed(CentreKeepingFitter):
         @torch.no_grad()
-        def _network(self, clouds):
-            c = self._centre
-            lab = self.vertex_parts[cKDTree(fit["vertices"] - c).query(clouds[0])[1]]
+        def _network(self, clouds):  # one scan's draws (net_draws): the same answer for each
+            c, k = self._centre, len(clouds)
+            tree = cKDTree(fit["vertices"] - c)
+            lab = np.stack([self.vertex_parts[tree.query(p)[1]] for p in clouds])
             return {
-                "part_probs": torch.as_tensor(np.eye(22)[lab] * 0.9 + 0.1 / 22, dtype=torch.float32)[None],
-                "local_rotmats": torch.as_tensor(s["pose"], dtype=torch.float32)[None],
-                "betas": torch.as_tensor(s["betas"], dtype=torch.float32)[None],
-                "transl": torch.as_tensor(s["transl"] - c, dtype=torch.float32)[None],
+                "part_probs": torch.as_tensor(np.eye(22)[lab] * 0.9 + 0.1 / 22, dtype=torch.float32),
+                "local_rotmats": torch.as_tensor(s["pose"], dtype=torch.float32)[None].expand(k, -1, -1, -1),
+                "betas": torch.as_tensor(s["betas"], dtype=torch.float32)[None].expand(k, -1),
+                "transl": torch.as_tensor(s["transl"] - c, dtype=torch.float32)[None].expand(k, -1),
             }
 
     v2v = {}

@@ -226,7 +226,7 @@ def surface_distance_cm(fitted: np.ndarray, truth: np.ndarray) -> float:
 
 def run(
     model: str | None, usable_cm: float, seed: int = 0, crossing: bool = True, gain: float | None = None,
-    refine_set: tuple[str, ...] = (),
+    refine_set: tuple[str, ...] = (), net_draws: int | None = None,
 ) -> list[dict]:  # fmt: skip
     from arteq.fit.api import Fitter
     from arteq.fit.crossing import CrossingConfig
@@ -235,7 +235,7 @@ def run(
     if crossing and gain is not None:
         crossing = CrossingConfig(min_gain=gain)
     cfg = RefineConfig.from_strings(refine_set)
-    fitter = Fitter(ckpt=model, device="cpu", anny=False, crossing=crossing, refine_config=cfg)
+    fitter = Fitter(ckpt=model, device="cpu", anny=False, crossing=crossing, refine_config=cfg, net_draws=net_draws)
     records = []
     for it in labelled_set(seed):
         t = time.perf_counter()
@@ -301,11 +301,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="write every scan's record here (JSON)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
+    ap.add_argument("--net-draws", type=int, default=None, help="Fitter(net_draws=...) (default: the Fitter's)")
     a = ap.parse_args()
     torch.set_num_threads(1)
     t0 = time.perf_counter()
     records, ckpt = run(a.model, a.usable_cm, a.seed, crossing=not a.no_crossing, gain=a.crossing_gain,
-                        refine_set=tuple(a.set))  # fmt: skip
+                        refine_set=tuple(a.set), net_draws=a.net_draws)  # fmt: skip
     print(f"\ncheckpoint {ckpt}; {len(records)} scans in {time.perf_counter() - t0:.0f} s\n")
     print(table(records))
     if a.out:

@@ -119,7 +119,9 @@ def swapped_errors(body, res, betas, pose, gt) -> dict:
     return out
 
 
-def run_arm(arm: str, n: int, threads: int, ckpt: str | None = None, splits=None, refine_set=()) -> list:
+def run_arm(
+    arm: str, n: int, threads: int, ckpt: str | None = None, splits=None, refine_set=(), net_draws: int | None = None
+) -> list:
     from scipy.spatial import cKDTree
 
     from arteq.fit.api import Fitter
@@ -133,7 +135,7 @@ def run_arm(arm: str, n: int, threads: int, ckpt: str | None = None, splits=None
         kw["hypotheses"] = HypothesisConfig(**kw["hypotheses"])
     if refine_set:  # --set KEY=VALUE: RefineConfig fields
         kw["refine_config"] = RefineConfig.from_strings(refine_set)
-    fitter = Fitter(ckpt=ckpt, device="cpu", anny=False, **kw)
+    fitter = Fitter(ckpt=ckpt, device="cpu", anny=False, net_draws=net_draws, **kw)
     log = HypothesisLog()
     # the scans and their truth on the network's body (the cached view sets); the fit's body may hold more
     # shape components (Fitter's shape_betas: 32 for anny_allages), the truth's betas padded for it
@@ -304,13 +306,15 @@ def main() -> None:
     ap.add_argument("--table", action="store_true", help="write table.md from the results present")
     ap.add_argument("--splits", nargs="*", default=None, help="only these views (full front side back top)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
+    ap.add_argument("--net-draws", type=int, default=None, help="Fitter(net_draws=...) (default: the Fitter's)")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for arm in args.arm:
-        rows = run_arm(arm, args.scans, args.threads, args.ckpt, args.splits, args.set)
+        rows = run_arm(arm, args.scans, args.threads, args.ckpt, args.splits, args.set, args.net_draws)
         meta = {"arm": arm, "scans_per_view": args.scans, "threads": args.threads, "fitter": ARMS[arm],
-                "ckpt": args.ckpt or "anny22", "refine_set": args.set}  # fmt: skip
+                "ckpt": args.ckpt or "anny22", "refine_set": args.set,
+                "net_draws": args.net_draws}  # fmt: skip
         (out / f"{arm}.json").write_text(json.dumps({**meta, "rows": rows}, indent=1))
     if args.table:
         text = table(out)

@@ -355,6 +355,30 @@ def resample(points: np.ndarray, count: int, rng: np.random.Generator, jitter: f
     return np.concatenate([points, extra])
 
 
+#: :class:`Fitter`'s ``net_draws``: the network's prediction averaged over this many random subsets of a scan
+#: (experiments/fitting/net_draws.md)
+NET_DRAWS = 4
+
+
+def mean_prediction(pred: dict[str, torch.Tensor], draws: int) -> dict[str, torch.Tensor]:
+    """The network's predictions for ``draws`` clouds of each scan (rows ``i * draws + d``) averaged per
+    scan: the chordal mean of each joint's global rotation (local rotations rebuilt from them), the mean
+    betas and translation. ``[B * draws, ...]`` -> ``[B, ...]`` for those three keys."""
+    import roma
+
+    from arteq.body.skeleton import PARENTS, local_to_global
+
+    local = pred["local_rotmats"]
+    glob = local_to_global(local.double()).reshape(-1, draws, *local.shape[1:])
+    g = roma.special_procrustes(glob.sum(1))  # [B, K, 3, 3]
+    out_local = g[:, [max(p, 0) for p in PARENTS]].transpose(-1, -2) @ g
+    out_local[:, 0] = g[:, 0]
+    return {
+        "local_rotmats": out_local.to(local.dtype),
+        **{k: pred[k].reshape(-1, draws, *pred[k].shape[1:]).mean(1) for k in ("betas", "transl")},
+    }
+
+
 class Fitter:
     """A loaded model ready to fit clouds (keeps the network, body and tables between calls).
 
@@ -399,6 +423,11 @@ class Fitter:
         denoise_above_mm: a full scan whose noise (:func:`arteq.fit.conditions.scan_conditions`) is above
             this reaches the network smoothed (:func:`arteq.fit.conditions.denoise`; the refinement and the
             check use the raw points); ``None``: never (experiments/fitting/scan_defects.md).
+        net_draws: the network reads this many random subsets of its input size (``num_points`` of its
+            training, 500 for the shipped models) from each scan and its pose, shape and translation are
+            averaged over them (:func:`mean_prediction`; the refinement's part labels too): one subset's
+            prediction moves by centimetres from draw to draw. ``None``: :data:`NET_DRAWS`
+            (experiments/fitting/net_draws.md).
         shape_betas: shape coefficients the refinement fits (and the fit's ``betas`` hold): ``None``
             (default) the body's entry in :data:`DEFAULT_SHAPE_BETAS` (``anny_allages``: all 32 it stores),
             else the network's own count; more than the network's (up to what the body's file stores) adds
@@ -427,6 +456,7 @@ class Fitter:
         second_start: str | Path | bool | None = None,
         denoise_above_mm: float | None = 10.0,
         shape_betas: int | None = None,
+        net_draws: int | None = None,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
 
@@ -470,6 +500,10 @@ class Fitter:
         self.check = check
         self.strict = strict
         self.seed = seed
+        net_draws = NET_DRAWS if net_draws is None else net_draws
+        if int(net_draws) < 1:
+            raise ValueError(f"net_draws must be >= 1, got {net_draws}")
+        self.net_draws = int(net_draws)
         self.clean = clean
         self.clean_config = clean_config or CleanConfig()
         self.denoise_above_mm = denoise_above_mm
@@ -613,7 +647,8 @@ class Fitter:
         if not items:
             return []
         t0 = time.perf_counter()
-        net_in, ref_in = [], []
+        net_in, ref_in, clouds = [], [], []  # clouds: every draw of every scan (net_in: the first ones)
+        k = self.net_draws
         for it in items:
             rng = np.random.default_rng(self.seed)
             it["denoised"] = self._smooth_for_network(it)
@@ -623,14 +658,30 @@ class Fitter:
                 src = denoise(src if sub is None else src[sub])
             net_in.append(resample(src, self.net_points, rng))
             ref_in.append(resample(it["centred"], self.points, rng))
-        pred = self._network(net_in)
+            clouds += [net_in[-1]] + [resample(src, self.net_points, rng) for _ in range(k - 1)]
+        pred = self._network(clouds)
+        probs_draws = pred["part_probs"].float().cpu().numpy()  # [B * k, n, K] (waits for a GPU)
+        if k > 1:  # the first draw's outputs; pose, shape and translation the mean of all draws'
+            mean = mean_prediction(pred, k)
+            first = {n: v[::k] for n, v in pred.items() if torch.is_tensor(v) and len(v) == len(clouds)}
+            pred = {**pred, **first, **mean}
         extra = self.body.num_betas - pred["betas"].shape[-1]
         if extra > 0:  # shape_betas: the components the network does not predict start at 0
             pred["betas"] = torch.nn.functional.pad(pred["betas"], (0, extra))
-        probs_net = pred["part_probs"].float().cpu().numpy()  # (waits for a GPU)
-        trees = [cKDTree(p) for p in net_in]
-        near = [trees[i].query(ref_in[i])[1] for i in range(len(items))]  # each point's network point
-        probs_ref = np.stack([probs_net[i][near[i]] for i in range(len(items))])
+        trees = [cKDTree(p) for p in clouds]
+
+        def point_probs(i: int, query: np.ndarray) -> np.ndarray:
+            """Scan ``i``'s part probabilities at ``query``: those of the nearest point of each draw, averaged
+            (summed in place: a scan of millions of points holds two such arrays at a time)."""
+            out = probs_draws[i * k][trees[i * k].query(query)[1]]
+            for d in range(1, k):
+                out += probs_draws[i * k + d][trees[i * k + d].query(query)[1]]
+            if k > 1:
+                out /= k
+            return out
+
+        near = [trees[i * k].query(ref_in[i])[1] for i in range(len(items))]  # each point's first-draw point
+        probs_ref = np.stack([point_probs(i, ref_in[i]) for i in range(len(items))])
         t_net = time.perf_counter() - t0
         init = {"local_rotmats": pred["local_rotmats"], "betas": pred["betas"], "transl": pred["transl"]}
         t1 = time.perf_counter()
@@ -742,9 +793,9 @@ class Fitter:
             conf = np.zeros(n_all, dtype=np.float32)
             fit_lab = np.full(n_all, -1, dtype=np.int16)
             dist = np.full(n_all, np.inf, dtype=np.float32)
-            _, nn = trees[i].query(it["centred"])
-            lab[keep] = probs_net[i][nn].argmax(-1)
-            conf[keep] = probs_net[i][nn].max(-1)
+            probs_scan = point_probs(i, it["centred"])
+            lab[keep] = probs_scan.argmax(-1)
+            conf[keep] = probs_scan.max(-1)
             finite = it.get("finite", keep)
             d, vi = cKDTree(verts[i]).query(it.get("finite_centred", it["centred"]))
             fit_lab[finite] = self.vertex_parts[vi]

@@ -46,6 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--shape-betas", type=int, default=None, metavar="N",
                     help="shape coefficients the refinement fits (default: all 32 for the anny_allages body "
                          "of the default model, the network's own otherwise)")  # fmt: skip
+    ap.add_argument("--net-draws", type=int, default=None, metavar="K",
+                    help="the network's pose and shape averaged over K random subsets of each scan (default: "
+                    "arteq.fit.api.NET_DRAWS)")  # fmt: skip
     ap.add_argument("--preview", action=argparse.BooleanOptionalAction, default=True, help="write <name>.png")
     ap.add_argument("--overwrite", action="store_true", help="replace existing outputs (else skip them)")
     ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
@@ -108,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
                         refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny,
                         strict=args.strict, partial=args.partial, view_dir=args.view_dir,
                         crossing=args.crossing, second_start=args.second_start,
-                        shape_betas=args.shape_betas)  # fmt: skip
+                        shape_betas=args.shape_betas, net_draws=args.net_draws)  # fmt: skip
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"arteq-fit: {exc}", file=sys.stderr)
         return 2

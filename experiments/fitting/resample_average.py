@@ -1,0 +1,92 @@
+"""Probe: the network's prediction averaged over several random 500-point subsets of the same scan.
+
+The network reads 500 points (its training size) drawn at random from a scan of thousands; two draws of the
+same clean scan give bodies ~6 cm apart (experiments/fitting/clutter_spread.py, network alone). Averaging the
+predictions of K draws (per joint: the chordal mean of the global rotations; betas and translation: the mean)
+is a test-time average over the draw, not over orientation (section 2c of experiments/fitting/README.md).
+
+    OMP_NUM_THREADS=1 python experiments/fitting/resample_average.py [--seed 0] [--k 1,2,4,8]
+
+The user-scan suite's scans with a truth (``user_scans.people_scans(seed)``), the network alone (anny_scan):
+V2V cm to the truth per group for K draws (the first K of 8), and the spread of two disjoint K-averages.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+
+def average(pred: dict[str, torch.Tensor], k: int, parents) -> dict[str, torch.Tensor]:
+    """Rows ``0..k-1`` of ``pred`` averaged into one prediction: local rotations, betas, translation."""
+    import roma
+
+    from arteq.body.skeleton import local_to_global
+
+    glob = local_to_global(pred["local_rotmats"][:k].double(), tuple(parents))
+    g = roma.special_procrustes(glob.sum(0))  # [K, 3, 3] chordal mean per joint
+    par = g[[max(p, 0) for p in parents]]
+    local = par.transpose(-1, -2) @ g
+    local[0] = g[0]
+    return {"local_rotmats": local[None], "betas": pred["betas"][:k].double().mean(0, keepdim=True),
+            "transl": pred["transl"][:k].double().mean(0, keepdim=True)}  # fmt: skip
+
+
+def main() -> None:
+    import user_scans as us
+
+    from arteq.body.skeleton import PARENTS
+    from arteq.fit import Fitter
+    from arteq.fit.api import resample
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--k", default="1,2,4,8")
+    a = ap.parse_args()
+    ks = [int(x) for x in a.k.split(",")]
+    draws = 2 * max(ks)
+    torch.set_num_threads(1)
+    f = Fitter(ckpt="anny_scan", device="cpu", anny=False)
+    body = f.body
+    rows = {}
+    for s in us.people_scans(a.seed):
+        if not s.truth:
+            continue
+        it = f.prepare(s.points, name=s.name)
+        clouds = [resample(it["centred"], f.net_points, np.random.default_rng(d)) for d in range(draws)]
+        with torch.no_grad():
+            pred = f._network(clouds)
+            out = []
+            for k in ks:
+                both = []
+                for off in (0, max(ks)):
+                    p = average({n: v[off:] for n, v in pred.items() if n in ("local_rotmats", "betas", "transl")},
+                                k, PARENTS)  # fmt: skip
+                    nb = body.num_betas - p["betas"].shape[1]
+                    betas = torch.nn.functional.pad(p["betas"], (0, max(0, nb)))
+                    dt = body.v_template.dtype
+                    v = body(betas=betas.to(dt), pose=p["local_rotmats"].to(dt),
+                             transl=p["transl"].to(dt)).vertices[0].double().numpy() + it["center"]  # fmt: skip
+                    both.append(v)
+                v2v = np.linalg.norm(both[0] - s.vertices, axis=1).mean() * 100
+                spread = np.linalg.norm(both[0] - both[1], axis=1).mean() * 100
+                out.append((v2v, spread))
+        rows.setdefault(s.group, []).append(out)
+        print(f"{s.group:10s} {s.name[:40]:40s} " + "  ".join(f"K{k}: {v:5.1f} ({sp:4.1f})"
+              for k, (v, sp) in zip(ks, out)), flush=True)  # fmt: skip
+    print("\ngroup: V2V to the truth mean (spread of two K-averages mean), cm")
+    for g, r in rows.items():
+        m = np.array(r).mean(0)
+        print(
+            f"{g:10s} n={len(r):2d} " + "  ".join(f"K{k}: {v:5.2f} ({sp:4.2f})" for k, (v, sp) in zip(ks, m))
+        )
+
+
+if __name__ == "__main__":
+    main()
