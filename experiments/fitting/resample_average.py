@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import roma
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -48,6 +49,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--k", default="1,2,4,8")
+    ap.add_argument("--rotate", action="store_true",
+                    help="each draw also turned by a random rotation (the prediction turned back)")  # fmt: skip
     a = ap.parse_args()
     ks = [int(x) for x in a.k.split(",")]
     draws = 2 * max(ks)
@@ -60,8 +63,22 @@ def main() -> None:
             continue
         it = f.prepare(s.points, name=s.name)
         clouds = [resample(it["centred"], f.net_points, np.random.default_rng(d)) for d in range(draws)]
+        turns = [np.eye(3)] * draws
+        if a.rotate:  # the first draw as it is, the others turned (a fixed seed per draw)
+            turns = [np.eye(3)] + [roma.random_rotmat(generator=torch.Generator().manual_seed(100 + d),
+                                                      dtype=torch.float64).numpy() for d in range(1, draws)]  # fmt: skip
+            clouds = [c @ q.T for c, q in zip(clouds, turns)]
         with torch.no_grad():
             pred = f._network(clouds)
+            if a.rotate:  # back into the scan's frame: the root turned back, the translation about the pelvis
+                q = torch.as_tensor(np.stack(turns), dtype=torch.float64)
+                dt = body.v_template.dtype
+                nb = body.num_betas - pred["betas"].shape[1]
+                j0 = body(betas=torch.nn.functional.pad(pred["betas"], (0, max(0, nb))).to(dt)).joints[:, 0].double()
+                local = pred["local_rotmats"].double().clone()
+                local[:, 0] = q.transpose(-1, -2) @ local[:, 0]
+                t = (q.transpose(-1, -2) @ (j0 + pred["transl"].double())[..., None])[..., 0] - j0
+                pred = {**pred, "local_rotmats": local.to(pred["local_rotmats"].dtype), "transl": t}
             out = []
             for k in ks:
                 both = []
