@@ -461,6 +461,43 @@ def test_api_and_command_agree(tiny_ckpt, body, tmp_path):
     assert rows[0]["seconds"] > 0
 
 
+def test_jobs_fit_the_same_as_one_process(tiny_ckpt, body, tmp_path):
+    """``jobs=2``: this process and a spawned worker fit alternate batches (one scan each here); every
+    output is the one process's, bit for bit (one torch thread each), and the summary keeps the inputs'
+    order. A bad input still gets its row; ``jobs`` without the Fitter's settings is an error."""
+    clouds = [synthetic_scan(body, "test_id", i, 1200, offset=1.0)["points"] for i in range(3)]
+    paths = [write_cloud(tmp_path / f"scan{i}.npy", c) for i, c in enumerate(clouds)]
+    bad = tmp_path / "bad.npy"
+    np.save(bad, np.zeros((5, 3)))
+    kw = dict(ckpt=tiny_ckpt, device="cpu", points=800, check=False, anny=False, second_start=False)
+    from arteq.fit.refine import RefineConfig
+
+    kw["refine_config"] = RefineConfig(iters=4)
+    inputs = [*paths, bad]
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        one = fit_files(inputs, tmp_path / "one", preview=False, batch_size=1, log=lambda m: None, **kw)
+    finally:
+        torch.set_num_threads(threads)
+    two = fit_files(inputs, tmp_path / "two", preview=False, batch_size=1, log=lambda m: None, jobs=2,
+                    threads=1, **kw)  # fmt: skip
+    assert torch.get_num_threads() == threads  # the run's share of the cores is given back
+    assert (
+        [r["name"] for r in two.rows] == [r["name"] for r in one.rows] == ["scan0", "scan1", "scan2", "bad"]
+    )
+    assert [r["status"] for r in one.rows] == [r["status"] for r in two.rows]
+    assert [r["status"] for r in two.rows] == ["ok", "ok", "ok", "error"]
+    for i in range(3):
+        a, b = np.load(tmp_path / "one" / f"scan{i}.npz"), np.load(tmp_path / "two" / f"scan{i}.npz")
+        np.testing.assert_array_equal(a["vertices"], b["vertices"])
+        np.testing.assert_array_equal(a["point_labels"], b["point_labels"])
+    summary = json.loads((tmp_path / "two" / "summary.json").read_text())
+    assert [r["name"] for r in summary["inputs"]] == ["scan0", "scan1", "scan2", "bad"]
+    with pytest.raises(ValueError, match="fitter_kwargs"):
+        fit_files(paths, tmp_path / "three", jobs=2)
+
+
 def test_failed_write_leaves_nothing(tiny_ckpt, body, tmp_path, monkeypatch):
     import arteq.fit.preview as preview
 

@@ -146,6 +146,76 @@ def read_input(path: Path, key: str | None, mesh_samples: int, depth: DepthOptio
     return read_scan(path, key=key, mesh_samples=mesh_samples)
 
 
+def _fit_batch(
+    fitter: Fitter,
+    chunk: list[tuple[Path, str]],
+    out: Path,
+    units: str,
+    key: str | None,
+    preview: bool,
+    depth: DepthOptions | None,
+) -> tuple[list[dict[str, Any]], list[str]]:
+    """Fit and write one batch of ``(file, output name)``: the summary rows (in ``chunk``'s order of the
+    fitted ones, failures first) and the lines to log."""
+    prepared, rows, done, msgs = [], [], [], []
+
+    def fail(row: dict[str, Any], msg: str) -> None:
+        row.update(status="error", message=msg)
+        done.append(row)
+        msgs.append(msg)
+
+    for f, name in chunk:
+        row = {"input": str(f), "name": name}
+        try:
+            scan = read_input(f, key, max(20000, fitter.points), depth)
+            if scan.kind == "depth":  # metres in the camera frame, the camera at the origin
+                item = fitter.prepare(scan.points, units="m", name=str(f), viewpoint=scan.viewpoint)
+            else:
+                item = fitter.prepare(scan.points, units=units, name=str(f))
+            item["out_name"] = name
+            prepared.append(item)
+            rows.append(row)
+        except ScanError as exc:
+            fail(row, str(exc))
+    try:
+        results = fitter.fit_prepared(prepared)
+    except Exception as exc:  # noqa: BLE001 - the batch goes on; each input says why
+        results = [None] * len(prepared)
+        err = f"{type(exc).__name__}: {exc}"
+    for item, row, res in zip(prepared, rows, results):
+        if res is None:
+            fail(row, f"{item['name']}: fitting failed ({err})")
+            continue
+        res.name = item["out_name"]
+        row.update(res.summary_row(), input=item["name"])
+        if res.written:
+            try:
+                write_result(res, out, preview=preview, source=item["name"])
+            except Exception as exc:  # noqa: BLE001
+                fail(row, f"{item['name']}: writing the outputs failed ({type(exc).__name__}: {exc})")
+                continue
+        if res.message and res.status != "ok":
+            msgs.append(res.message)
+        done.append(row)
+    return done, msgs
+
+
+#: the worker process's Fitter (``jobs`` > 1)
+_WORKER_FITTER: Fitter | None = None
+
+
+def _init_worker(fitter_kwargs: dict[str, Any], threads: int) -> None:
+    import torch
+
+    global _WORKER_FITTER
+    torch.set_num_threads(threads)
+    _WORKER_FITTER = Fitter(**fitter_kwargs)
+
+
+def _worker_batch(args: tuple) -> tuple[list[dict[str, Any]], list[str]]:
+    return _fit_batch(_WORKER_FITTER, *args)
+
+
 def fit_files(
     inputs: list[str | Path],
     out_dir: str | Path,
@@ -158,6 +228,8 @@ def fit_files(
     progress: bool | None = None,
     log: Callable[[str], None] | None = None,
     depth: DepthOptions | None = None,
+    jobs: int = 1,
+    threads: int | None = None,
     **fitter_kwargs: Any,
 ) -> RunSummary:
     """Fit every scan named by ``inputs`` (files, folders searched recursively, globs) into ``out_dir``.
@@ -165,8 +237,20 @@ def fit_files(
     ``fitter``: a loaded :class:`Fitter` (else one is built from ``fitter_kwargs``: ``ckpt``, ``device``,
     ``refine``, ``points``, ``check``...). ``log`` receives one line per failed input (default: stderr).
     ``depth``: how depth images are read (:class:`arteq.fit.depth.DepthOptions`: intrinsics, depth range).
+    ``jobs`` > 1: this process and ``jobs - 1`` worker processes fit the batches side by side (every
+    ``jobs``-th batch each), the workers with a Fitter of their own built from ``fitter_kwargs`` (which
+    must then be given; this process uses ``fitter`` or builds one from them too), each process with
+    ``threads`` torch threads (default: the CPU count divided among them). The outputs are those of one
+    process; two one-thread processes fit about twice the scans of one two-thread process on two cores
+    (the fit's steps are too small to share threads well; docs/fitting.md).
     Returns a :class:`RunSummary`; ``summary.failed`` > 0 means some input failed.
     """
+    import os
+
+    if jobs < 1:
+        raise ValueError(f"jobs must be >= 1, got {jobs}")
+    if jobs > 1 and not fitter_kwargs:
+        raise ValueError("fit_files: jobs > 1 builds each worker's Fitter from fitter_kwargs; give them")
     t0 = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -186,7 +270,11 @@ def fit_files(
                                  "message": f"{f}: outputs exist in {out} (use --overwrite)"})  # fmt: skip
             continue
         todo.append((f, name))
-    if todo and fitter is None:
+    size = max(1, batch_size)
+    batches = [todo[s : s + size] for s in range(0, len(todo), size)]
+    jobs = max(1, min(jobs, len(batches)))
+    per = threads or max(1, (os.cpu_count() or jobs) // jobs)
+    if batches and fitter is None:
         fitter = Fitter(**fitter_kwargs)
     bar = None
     if progress is None:
@@ -201,50 +289,44 @@ def fit_files(
         write_atomic(out / "summary.json", json_bytes(summary.to_json()))
         write_atomic(out / "summary.csv", csv_bytes(summary.rows, SUMMARY_COLUMNS))
 
-    def fail(row: dict[str, Any], msg: str) -> None:
-        row.update(status="error", message=msg)
-        summary.rows.append(row)
-        log(msg)
+    first = list(summary.rows)  # input problems and skipped files
+    done: dict[int, list[dict[str, Any]]] = {}
 
-    for start in range(0, len(todo), max(1, batch_size)):
-        chunk = todo[start : start + max(1, batch_size)]
-        prepared, rows = [], []
-        for f, name in chunk:
-            row = {"input": str(f), "name": name}
-            try:
-                scan = read_input(f, key, max(20000, fitter.points), depth)
-                if scan.kind == "depth":  # metres in the camera frame, the camera at the origin
-                    item = fitter.prepare(scan.points, units="m", name=str(f), viewpoint=scan.viewpoint)
-                else:
-                    item = fitter.prepare(scan.points, units=units, name=str(f))
-                item["out_name"] = name
-                prepared.append(item)
-                rows.append(row)
-            except ScanError as exc:
-                fail(row, str(exc))
-        try:
-            results = fitter.fit_prepared(prepared)
-        except Exception as exc:  # noqa: BLE001 - the batch goes on; each input says why
-            results = [None] * len(prepared)
-            err = f"{type(exc).__name__}: {exc}"
-        for item, row, res in zip(prepared, rows, results):
-            if res is None:
-                fail(row, f"{item['name']}: fitting failed ({err})")
-                continue
-            res.name = item["out_name"]
-            row.update(res.summary_row(), input=item["name"])
-            if res.written:
-                try:
-                    write_result(res, out, preview=preview, source=item["name"])
-                except Exception as exc:  # noqa: BLE001
-                    fail(row, f"{item['name']}: writing the outputs failed ({type(exc).__name__}: {exc})")
-                    continue
-            if res.message and res.status != "ok":
-                log(res.message)
-            summary.rows.append(row)
+    def collect(i: int, rows_msgs) -> None:
+        """Batch ``i``'s rows into the summary (in input order) and its lines into the log."""
+        rows, msgs = rows_msgs
+        done[i] = rows
+        summary.rows = first + [r for j in sorted(done) for r in done[j]]
+        for m in msgs:
+            log(m)
         if bar is not None:
-            bar.update(len(chunk))
+            bar.update(len(batches[i]))
         write_summary()
+
+    args = [(chunk, out, units, key, preview, depth) for chunk in batches]
+    if jobs == 1:
+        for i, a in enumerate(args):
+            collect(i, _fit_batch(fitter, *a))
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        import torch
+
+        ctx = multiprocessing.get_context("spawn")  # no forked torch thread pools
+        before = torch.get_num_threads()
+        torch.set_num_threads(per)  # this process's share too, for the run only
+        try:
+            with ProcessPoolExecutor(jobs - 1, mp_context=ctx, initializer=_init_worker,
+                                     initargs=(fitter_kwargs, per)) as pool:  # fmt: skip
+                futures = {i: pool.submit(_worker_batch, a) for i, a in enumerate(args) if i % jobs}
+                for i, a in enumerate(args):  # this process's batches, then the workers' as they are ready
+                    if i not in futures:
+                        collect(i, _fit_batch(fitter, *a))
+                for i, fut in futures.items():
+                    collect(i, fut.result())
+        finally:
+            torch.set_num_threads(before)
     if bar is not None:
         bar.close()
     write_summary()
