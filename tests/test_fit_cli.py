@@ -496,6 +496,15 @@ def test_jobs_fit_the_same_as_one_process(tiny_ckpt, body, tmp_path):
     assert [r["name"] for r in summary["inputs"]] == ["scan0", "scan1", "scan2", "bad"]
     with pytest.raises(ValueError, match="fitter_kwargs"):
         fit_files(paths, tmp_path / "three", jobs=2)
+    # a worker that cannot start (its checkpoint is missing): this process's batches are fitted, the
+    # worker's inputs get an error row naming the failure, nothing half-written
+    f = Fitter(**kw)
+    bad_kw = {**kw, "ckpt": tmp_path / "missing.ckpt"}
+    three = fit_files(paths, tmp_path / "four", fitter=f, preview=False, batch_size=1, log=lambda m: None,
+                      jobs=2, threads=1, **bad_kw)  # fmt: skip
+    assert [r["status"] for r in three.rows] == ["ok", "error", "ok"]
+    assert "worker process failed" in three.rows[1]["message"]
+    assert not list((tmp_path / "four").glob("scan1.*"))
 
 
 def test_failed_write_leaves_nothing(tiny_ckpt, body, tmp_path, monkeypatch):

@@ -324,7 +324,13 @@ def fit_files(
                     if i not in futures:
                         collect(i, _fit_batch(fitter, *a))
                 for i, fut in futures.items():
-                    collect(i, fut.result())
+                    try:
+                        collect(i, fut.result())
+                    except Exception as exc:  # noqa: BLE001 - a worker that died: its batch's inputs say so
+                        why = f"a worker process failed ({type(exc).__name__}: {exc})"
+                        rows = [{"input": str(f), "name": name, "status": "error", "message": f"{f}: {why}"}
+                                for f, name in batches[i]]  # fmt: skip
+                        collect(i, (rows, [r["message"] for r in rows]))
         finally:
             torch.set_num_threads(before)
     if bar is not None:
