@@ -133,3 +133,24 @@ def test_atomic_group_leaves_nothing_on_failure(tmp_path):
     assert (tmp_path / "a.obj").read_text().count("\nf 1 2 3") == 1
     (tmp_path / ".x.obj.123.tmp").write_text("left by a killed run")
     assert remove_stale_tmp(tmp_path) == 1 and [p.name for p in tmp_path.iterdir()] == ["a.obj"]
+
+
+def test_obj_bytes_is_savetxt_text_and_reads_back():
+    """The fit's OBJ: the text ``np.savetxt`` writes for ``v %.6g`` / ``f %d`` rows (1-based faces), the
+    header as comments; trimesh reads back the vertices (to 6 significant digits) and the faces."""
+    import io
+
+    import trimesh
+
+    rng = np.random.default_rng(1)
+    v = (rng.normal(size=(300, 3)) * 100).astype(np.float32)
+    f = rng.integers(0, 300, (500, 3))
+    ref = io.StringIO()
+    ref.write("# fit of a\n# units m\n")
+    np.savetxt(ref, v.astype(np.float64), fmt="v %.6g %.6g %.6g")
+    np.savetxt(ref, f + 1, fmt="f %d %d %d")
+    data = obj_bytes(v, f, "fit of a\nunits m")
+    assert data == ref.getvalue().encode()
+    mesh = trimesh.load(io.BytesIO(data), file_type="obj", process=False)
+    np.testing.assert_allclose(mesh.vertices, v, rtol=1e-5)
+    np.testing.assert_array_equal(mesh.faces, f)
