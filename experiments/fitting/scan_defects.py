@@ -141,6 +141,7 @@ def main() -> None:
     ap.add_argument("--out", default=None, help="the Markdown tables")
     ap.add_argument("--json", default=None, help="every fit's record")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
+    ap.add_argument("--net-draws", type=int, default=None, help="Fitter(net_draws=...) (default: the Fitter's)")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     defects = [d for d in a.defects.split(",") if d]
@@ -151,7 +152,8 @@ def main() -> None:
     faces = people.faces
     from arteq.fit.refine import RefineConfig
 
-    fitter = Fitter(ckpt=a.ckpt, device="cpu", anny=False, refine_config=RefineConfig.from_strings(a.set))
+    fitter = Fitter(ckpt=a.ckpt, device="cpu", anny=False, refine_config=RefineConfig.from_strings(a.set),
+                    net_draws=a.net_draws)
     kids = a.bodies // 2
     phens = people.sample(kids, (3.0, 12.0), 9100 + a.seed)
     phens += people.sample(a.bodies - kids, (18.0, 70.0), 9200 + a.seed)
