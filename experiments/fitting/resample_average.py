@@ -24,33 +24,16 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
-def average(pred: dict[str, torch.Tensor], k: int, parents) -> dict[str, torch.Tensor]:
-    """Rows ``0..k-1`` of ``pred`` averaged into one prediction: local rotations, betas, translation."""
-    import roma
-
-    from arteq.body.skeleton import local_to_global
-
-    glob = local_to_global(pred["local_rotmats"][:k].double(), tuple(parents))
-    g = roma.special_procrustes(glob.sum(0))  # [K, 3, 3] chordal mean per joint
-    par = g[[max(p, 0) for p in parents]]
-    local = par.transpose(-1, -2) @ g
-    local[0] = g[0]
-    return {"local_rotmats": local[None], "betas": pred["betas"][:k].double().mean(0, keepdim=True),
-            "transl": pred["transl"][:k].double().mean(0, keepdim=True)}  # fmt: skip
-
-
 def main() -> None:
     import user_scans as us
 
-    from arteq.body.skeleton import PARENTS
     from arteq.fit import Fitter
-    from arteq.fit.api import resample
+    from arteq.fit.api import mean_prediction, resample
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--k", default="1,2,4,8")
-    ap.add_argument("--rotate", action="store_true",
-                    help="each draw also turned by a random rotation (the prediction turned back)")  # fmt: skip
+    ap.add_argument("--rotate", action="store_true", help="draws turned, predictions turned back")
     a = ap.parse_args()
     ks = [int(x) for x in a.k.split(",")]
     draws = 2 * max(ks)
@@ -63,10 +46,10 @@ def main() -> None:
             continue
         it = f.prepare(s.points, name=s.name)
         clouds = [resample(it["centred"], f.net_points, np.random.default_rng(d)) for d in range(draws)]
-        turns = [np.eye(3)] * draws
+        turns = [np.eye(3)] * (1 if a.rotate else draws)
         if a.rotate:  # the first draw as it is, the others turned (a fixed seed per draw)
-            turns = [np.eye(3)] + [roma.random_rotmat(generator=torch.Generator().manual_seed(100 + d),
-                                                      dtype=torch.float64).numpy() for d in range(1, draws)]  # fmt: skip
+            gens = [torch.Generator().manual_seed(100 + d) for d in range(1, draws)]
+            turns += [roma.random_rotmat(generator=g, dtype=torch.float64).numpy() for g in gens]
             clouds = [c @ q.T for c, q in zip(clouds, turns)]
         with torch.no_grad():
             pred = f._network(clouds)
@@ -74,7 +57,8 @@ def main() -> None:
                 q = torch.as_tensor(np.stack(turns), dtype=torch.float64)
                 dt = body.v_template.dtype
                 nb = body.num_betas - pred["betas"].shape[1]
-                j0 = body(betas=torch.nn.functional.pad(pred["betas"], (0, max(0, nb))).to(dt)).joints[:, 0].double()
+                padded = torch.nn.functional.pad(pred["betas"], (0, max(0, nb))).to(dt)
+                j0 = body(betas=padded).joints[:, 0].double()
                 local = pred["local_rotmats"].double().clone()
                 local[:, 0] = q.transpose(-1, -2) @ local[:, 0]
                 t = (q.transpose(-1, -2) @ (j0 + pred["transl"].double())[..., None])[..., 0] - j0
@@ -83,13 +67,13 @@ def main() -> None:
             for k in ks:
                 both = []
                 for off in (0, max(ks)):
-                    p = average({n: v[off:] for n, v in pred.items() if n in ("local_rotmats", "betas", "transl")},
-                                k, PARENTS)  # fmt: skip
+                    rows_k = {n: pred[n][off : off + k] for n in ("local_rotmats", "betas", "transl")}
+                    p = mean_prediction(rows_k, k)
                     nb = body.num_betas - p["betas"].shape[1]
                     betas = torch.nn.functional.pad(p["betas"], (0, max(0, nb)))
                     dt = body.v_template.dtype
-                    v = body(betas=betas.to(dt), pose=p["local_rotmats"].to(dt),
-                             transl=p["transl"].to(dt)).vertices[0].double().numpy() + it["center"]  # fmt: skip
+                    posed = body(betas=betas.to(dt), pose=p["local_rotmats"].to(dt), transl=p["transl"])
+                    v = posed.vertices[0].double().numpy() + it["center"]
                     both.append(v)
                 v2v = np.linalg.norm(both[0] - s.vertices, axis=1).mean() * 100
                 spread = np.linalg.norm(both[0] - both[1], axis=1).mean() * 100

@@ -93,8 +93,8 @@ def build_parser() -> argparse.ArgumentParser:
         "-j",
         type=int,
         default=1,
-        help="processes fitting batches side by side (default 1; on 2 cores, --jobs 2 fits about "
-        "twice the scans per minute: each fit's steps are too small to share threads well)",
+        help="processes fitting batches side by side (default 1; on 2 cores, --jobs 2 fitted 28 scans in "
+        "38 s against 50 s in one process: each fit's steps are too small to share threads well)",
     )
     return ap
 
