@@ -99,8 +99,10 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
 
 @hydra.main(version_base="1.3", config_path=str(conf_dir()), config_name="eval")
 def main(cfg: DictConfig) -> None:
+    from arteq.runtime import tune_cpu_allocator
     from arteq.training.validate import exit_on_config_error
 
+    tune_cpu_allocator()  # as arteq.train: large temporaries reused, not page-faulted in again
     with exit_on_config_error("arteq.eval"):
         evaluate(cfg)
 

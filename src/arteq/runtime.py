@@ -3,8 +3,10 @@
 :func:`tune_cpu_allocator`: glibc returns every freed block above its mmap threshold (at most 32 MiB by
 default) to the kernel, so each large temporary of a training step is page-faulted in again; measured on
 the 2-core machine, one backbone forward + backward took 270-360 k minor faults and 0.7-0.9 s of kernel
-time. Raising the threshold and the trim threshold keeps freed memory in the process (peak memory is
-unchanged; the memory is reused). No-op where glibc's ``mallopt`` is unavailable or ``ARTEQ_MALLOC_TUNE=0``.
+time; the fitter's network pass (16 clouds of 500 points) 571 k faults and 1.3 s of kernel time per call
+(benchmarks/bench_fit_network.py). Raising the threshold and the trim threshold keeps freed memory in the
+process (peak memory is unchanged; the memory is reused). Called by ``arteq.train``, ``arteq.eval`` and
+``arteq.fit.Fitter``. No-op where glibc's ``mallopt`` is unavailable or ``ARTEQ_MALLOC_TUNE=0``.
 
 :func:`one_thread`: run a block with one intra-op thread (small per-sample ops; LAPACK results that must
 not depend on the thread count), restoring the previous count.
