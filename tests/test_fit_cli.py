@@ -44,7 +44,7 @@ class OracleFitter(CentreKeepingFitter):
     truth: dict | None = None
 
     @torch.no_grad()
-    def _network(self, clouds):
+    def _network(self, clouds, turns=None):
         """One scan's draws (``net_draws``): noisy labels per draw, the same perturbed pose for all."""
         s, c = self.truth, self._centre
         rng = np.random.default_rng(0)
@@ -592,8 +592,8 @@ class _RestPoseFitter(OracleFitter):
     """The oracle with every joint at rest: a start far from a posed scan."""
 
     @torch.no_grad()
-    def _network(self, clouds):
-        p = super()._network(clouds)
+    def _network(self, clouds, turns=None):
+        p = super()._network(clouds, turns)
         p["local_rotmats"] = torch.eye(3).expand_as(p["local_rotmats"]).clone()
         return p
 
@@ -617,6 +617,46 @@ def test_second_start_is_kept_when_it_explains_the_scan_better(tiny_ckpt, body, 
     assert start["iteration"] == refine_iteration(f.refine_config, SECOND_START_STOPS[0][0]), start
     v2v = np.linalg.norm(res.vertices - s["vertices"], axis=1).mean() * 100
     assert v2v < FIT_BOUND_CM
+
+
+class _LostUnlessTurned(OracleFitter):
+    """The oracle's answer for a turned reading of the scan (a retry's), every joint at rest for the first."""
+
+    @torch.no_grad()
+    def _network(self, clouds, turns=None):
+        p = super()._network(clouds, turns)
+        if turns is None:
+            p["local_rotmats"] = torch.eye(3).expand_as(p["local_rotmats"]).clone()
+        return p
+
+
+def test_retry_keeps_the_fit_that_explains_the_scan_best(tiny_ckpt, body):
+    """A full scan whose first fit is lost (refined from the rest pose) and doubted by the check is fitted
+    again from turned readings (here the truth): the fit kept is the best scoring one, it is the truth's,
+    its record says which; without retries the lost fit stays."""
+    s = synthetic_scan(body, "test_ood", 2, 5000, offset=0.0)
+    kw = dict(ckpt=tiny_ckpt, device="cpu", anny=False, crossing=False)
+    lost = _LostUnlessTurned(retries=0, **kw)
+    lost.truth = s
+    first = lost.fit_points(s["points"])
+    assert first.status == "uncertain" and first.retry is None, first.message
+    f = _LostUnlessTurned(retries=2, **kw)
+    f.truth = s
+    res = f.fit_points(s["points"])
+    scores = res.retry["scores_cm"]
+    assert len(scores) == 3 and res.retry["picked"] in (1, 2), res.retry
+    assert scores[res.retry["picked"]] == min(scores) < scores[0]
+    # picked by its surface, which wrong vertices can explain too: flagged although the check passes it
+    assert res.status == "uncertain" and "refitted" in res.quality["flags"], res.message
+    assert res.timings["retry"] > 0 and res.timings["total"] > res.timings["retry"]
+    assert res.to_json()["retry"] == res.retry and res.summary_row()["retry"] == res.retry["picked"]
+
+    def v2v(r):
+        return np.linalg.norm(r.vertices - s["vertices"], axis=1).mean() * 100
+
+    assert v2v(res) < FIT_BOUND_CM < v2v(first)
+    with pytest.raises(ValueError, match="retries"):
+        Fitter(ckpt=tiny_ckpt, device="cpu", anny=False, retries=-1)
 
 
 def test_second_start_that_does_not_exist_is_named(tiny_ckpt, tmp_path):

@@ -62,9 +62,9 @@ class _Recording(Fitter):
         self.centre = item["center"]
         return item
 
-    def _network(self, clouds):
+    def _network(self, clouds, turns=None):
         self.clouds = [c.copy() for c in clouds]
-        return super()._network(clouds)
+        return super()._network(clouds, turns)
 
 
 def test_net_draws_fit_is_the_mean_of_the_draws(tiny_ckpt, scan):

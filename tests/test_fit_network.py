@@ -83,3 +83,30 @@ def test_preview_keeps_the_matplotlib_backend(tiny_ckpt, cloud, tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == "svg False", out.stdout
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_turned_reading_is_turned_back_into_the_clouds_frame(tiny_ckpt, cloud):
+    """``FitNetwork(x, turn)``: the network reads the cloud turned and its answer comes back in the cloud's
+    frame. Turned by an element of the network's rotation group, the answer is the unturned one (to float
+    rounding: the network is equivariant to that group); turned by any rotation, the global rotations are
+    those of the turned cloud's reading turned back, the per-point outputs the turned cloud's."""
+    import roma
+
+    from arteq.equivariant.group import group_rotations
+
+    net = load_network(tiny_ckpt)
+    pts = np.load(cloud)[:500]
+    x = torch.as_tensor(pts - pts.mean(0), dtype=torch.float32)[None].repeat(2, 1, 1)
+    group = group_rotations().float()[[7, 23]]
+    torch.manual_seed(0)
+    turn = roma.random_rotmat(2)
+    with torch.no_grad():
+        plain, in_group, turned = net(x), net(x, group), net(x, turn)
+        raw = net(x @ turn.transpose(-1, -2))
+    for key in ("local_rotmats", "global_rotmats", "transl", "part_probs", "betas"):
+        assert torch.allclose(in_group[key], plain[key], atol=2e-3), key
+    back = turn.transpose(-1, -2)[:, None]
+    assert torch.allclose(turned["global_rotmats"], back @ raw["global_rotmats"], atol=1e-5)
+    assert torch.allclose(turned["local_rotmats"][:, 1:], raw["local_rotmats"][:, 1:])
+    assert torch.equal(turned["part_probs"], raw["part_probs"])
+    assert not torch.allclose(turned["global_rotmats"], raw["global_rotmats"], atol=1e-2)  # it did turn back

@@ -226,7 +226,8 @@ def surface_distance_cm(fitted: np.ndarray, truth: np.ndarray) -> float:
 
 def run(
     model: str | None, usable_cm: float, seed: int = 0, crossing: bool = True, gain: float | None = None,
-    refine_set: tuple[str, ...] = (), net_draws: int | None = None,
+    refine_set: tuple[str, ...] = (), net_draws: int | None = None, retries: int | None = None,
+    retry_above_cm: float | None = None,
 ) -> list[dict]:  # fmt: skip
     from arteq.fit.api import Fitter
     from arteq.fit.crossing import CrossingConfig
@@ -235,7 +236,8 @@ def run(
     if crossing and gain is not None:
         crossing = CrossingConfig(min_gain=gain)
     cfg = RefineConfig.from_strings(refine_set)
-    fitter = Fitter(ckpt=model, device="cpu", anny=False, crossing=crossing, refine_config=cfg, net_draws=net_draws)
+    fitter = Fitter(ckpt=model, device="cpu", anny=False, crossing=crossing, refine_config=cfg,
+                    net_draws=net_draws, retries=retries, retry_above_cm=retry_above_cm)  # fmt: skip
     records = []
     for it in labelled_set(seed):
         t = time.perf_counter()
@@ -302,11 +304,14 @@ def main() -> None:
     ap.add_argument("--out", default=None, help="write every scan's record here (JSON)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
     ap.add_argument("--net-draws", type=int, default=None, help="Fitter(net_draws=...) (default: the Fitter's)")
+    ap.add_argument("--retries", type=int, default=None, help="Fitter(retries=...) (default: the Fitter's)")
+    ap.add_argument("--retry-above", type=float, default=None, help="Fitter(retry_above_cm=...)")
     a = ap.parse_args()
     torch.set_num_threads(1)
     t0 = time.perf_counter()
     records, ckpt = run(a.model, a.usable_cm, a.seed, crossing=not a.no_crossing, gain=a.crossing_gain,
-                        refine_set=tuple(a.set), net_draws=a.net_draws)  # fmt: skip
+                        refine_set=tuple(a.set), net_draws=a.net_draws, retries=a.retries,
+                        retry_above_cm=a.retry_above)  # fmt: skip
     print(f"\ncheckpoint {ckpt}; {len(records)} scans in {time.perf_counter() - t0:.0f} s\n")
     print(table(records))
     if a.out:

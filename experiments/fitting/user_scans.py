@@ -539,7 +539,8 @@ def run_people(a) -> None:
     cfg = RefineConfig.from_strings(a.set)
     kw = dict(
         ckpt=a.ckpt, device="cpu", points=5000, crossing=cross, refine_config=cfg, shape_betas=a.shape_betas,
-        net_draws=a.net_draws, **({"second_start": False} if a.no_second_start else {}),
+        net_draws=a.net_draws, retries=a.retries, retry_above_cm=a.retry_above,
+        **({"second_start": False} if a.no_second_start else {}),
     )
     fitter = Fitter(anny=True, **kw)
     other = Fitter(anny=False, seed=1, **kw)
@@ -675,6 +676,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="people: RefineConfig fields")
     ap.add_argument("--shape-betas", type=int, default=None, help="people: Fitter(shape_betas=...)")
     ap.add_argument("--net-draws", type=int, default=None, help="people: Fitter(net_draws=...)")
+    ap.add_argument("--retries", type=int, default=None, help="people: Fitter(retries=...)")
+    ap.add_argument("--retry-above", type=float, default=None, help="people: Fitter(retry_above_cm=...)")
     ap.add_argument("--no-second-start", action="store_true", help="people: Fitter(second_start=False)")
     ap.add_argument(
         "--truth-betas",

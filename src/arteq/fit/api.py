@@ -82,7 +82,8 @@ class FitResult:
     (the worse one stopped there; the refinement's count: both ran to the end).
     ``crossing``: for a full scan that tried swapped limb pairs (:mod:`arteq.fit.crossing`), the fit's
     score, each pair's score (cm; where it stopped for those in ``stopped``) and the pair taken (``""``:
-    none); None when none was tried.
+    none); None when none was tried. ``retry``: for a doubtful full scan fitted again (``Fitter(retries=K)``),
+    every fit's surface score (cm; the first fit's first) and the index of the one kept; None otherwise.
     """
 
     name: str
@@ -123,6 +124,7 @@ class FitResult:
     parts_seen: np.ndarray | None = None
     start_hypothesis: dict | None = None  # the refinement's start: partial scans' or the second start's pick
     crossing: dict | None = None  # full scans: swapped limb pairs tried (fit.crossing.try_swaps)
+    retry: dict | None = None  # full scans fitted again (Fitter's retries): every fit's score, the one kept
 
     def seen_names(self, seen: bool = True) -> list[str]:
         """Names of the parts seen (or, ``seen=False``, not seen) in the scan."""
@@ -213,6 +215,7 @@ class FitResult:
             "clutter_removed": self.clean.counts if self.clean is not None else None,
             "start": self.start_hypothesis,
             "crossing": self.crossing,
+            "retry": self.retry,
             "anny": json_section(self.anny, self.anny_note),
             "seconds": {k: round(v, 3) for k, v in self.timings.items()},
         }
@@ -240,6 +243,7 @@ class FitResult:
             "parts_unseen": " ".join(self.seen_names(False)),
             "start": (self.start_hypothesis or {}).get("picked", ""),
             "crossing": (self.crossing or {}).get("taken", ""),
+            "retry": "" if self.retry is None else self.retry["picked"],
             **{
                 f"removed_{k}": (self.clean.counts[k] if self.clean is not None else None)
                 for k in ("plane", "outlier", "cluster")
@@ -274,6 +278,23 @@ class Hyperparameters(dict):
             raise AttributeError(key) from None
 
 
+def turn_back(pred: dict[str, torch.Tensor], turn: torch.Tensor) -> dict[str, torch.Tensor]:
+    """The outputs of a network that read clouds turned by ``turn [B, 3, 3]`` (``points @ turn^T``), in the
+    clouds' own frame: the global rotations (``global_rotmats``, ``rot_mean``) and the root's local rotation
+    turned by ``turn^T``; per-point outputs, the other joints' local rotations and the shape need nothing
+    (``rot_weights``, over the group's elements, stay the turned cloud's). The translation is not turned:
+    :class:`FitNetwork` places the body on the cloud again."""
+    out = dict(pred)
+    back = turn.transpose(-1, -2)[:, None]
+    for k in ("global_rotmats", "rot_mean"):
+        if k in out:
+            out[k] = back.to(out[k].dtype) @ out[k]
+    local = out["local_rotmats"].clone()
+    local[:, 0] = back[:, 0].to(local.dtype) @ local[:, 0]
+    out["local_rotmats"] = local
+    return out
+
+
 class FitNetwork(torch.nn.Module):
     """A trained network with its body, for inference without Lightning: what
     :class:`arteq.training.ArtEqModule` computes at test time, for the fields fitting needs (the network's
@@ -293,11 +314,17 @@ class FitNetwork(torch.nn.Module):
             p.requires_grad_(False)
         self.register_buffer("centroid_matrix", body_centroid_matrix(body, net.num_parts), persistent=False)
 
-    def forward(self, points: torch.Tensor) -> dict[str, torch.Tensor]:
+    def forward(self, points: torch.Tensor, turn: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """``turn [B, 3, 3]`` (optional): the network reads each cloud turned by it and its outputs are turned
+        back into the cloud's frame (:func:`turn_back`): another reading of the same cloud, for a network
+        equivariant to a finite group of rotations only."""
         from arteq.models.placement import estimate_translation
         from arteq.models.precision import full_precision, upcast
 
-        pred = self.net(points)
+        if turn is None:
+            pred = self.net(points)
+        else:
+            pred = turn_back(self.net(points @ turn.transpose(-1, -2).to(points.dtype)), turn)
         with full_precision(points):  # the body model (LBS) and placement in float32 at least
             posed = self.body(betas=upcast(pred["betas"]), pose=upcast(pred["local_rotmats"]))
             pred["transl"] = estimate_translation(
@@ -358,6 +385,27 @@ def resample(points: np.ndarray, count: int, rng: np.random.Generator, jitter: f
 #: :class:`Fitter`'s ``net_draws``: the network's prediction averaged over this many random subsets of a scan
 #: (experiments/fitting/net_draws.md)
 NET_DRAWS = 4
+#: :class:`Fitter`'s ``retries`` (``arteq-fit --retries K``): a full scan's fit the check doubts and whose
+#: surface score (:func:`arteq.fit.crossing.surface_score`, cm) is above :data:`RETRY_ABOVE_CM` is fitted
+#: again K times, from the network's reading of the scan with other draws and then turned by
+#: :func:`retry_turns`, and the fit that explains the scan best is kept. Off by default: on the check's
+#: labelled sets 3 retries gave 2 more usable fits of 45 per seed but lost others further, for twice the
+#: time (experiments/fitting/retries.md).
+RETRIES = 0
+RETRY_ABOVE_CM = 2.0
+
+
+def retry_turns(count: int) -> np.ndarray:
+    """``[count, 3, 3]`` fixed rotations for :class:`Fitter`'s retries: the identity (other draws only), then
+    uniform random ones (seed 0: the same on every run)."""
+    q = np.random.default_rng(0).normal(size=(max(count, 0), 4))
+    q[:1] = [1.0, 0.0, 0.0, 0.0]
+    w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], 1)  # fmt: skip
 
 
 def mean_prediction(pred: dict[str, torch.Tensor], draws: int) -> dict[str, torch.Tensor]:
@@ -457,6 +505,8 @@ class Fitter:
         denoise_above_mm: float | None = 10.0,
         shape_betas: int | None = None,
         net_draws: int | None = None,
+        retries: int | None = None,
+        retry_above_cm: float | None = None,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
         from arteq.runtime import tune_cpu_allocator
@@ -508,6 +558,10 @@ class Fitter:
         if int(net_draws) < 1:
             raise ValueError(f"net_draws must be >= 1, got {net_draws}")
         self.net_draws = int(net_draws)
+        self.retries = RETRIES if retries is None else int(retries)
+        if self.retries < 0:
+            raise ValueError(f"retries must be >= 0, got {retries}")
+        self.retry_above_cm = RETRY_ABOVE_CM if retry_above_cm is None else float(retry_above_cm)
         self.clean = clean
         self.clean_config = clean_config or CleanConfig()
         self.denoise_above_mm = denoise_above_mm
@@ -640,16 +694,93 @@ class Fitter:
                 }  # fmt: skip
 
     @torch.no_grad()
-    def _network(self, clouds: list[np.ndarray]) -> dict[str, torch.Tensor]:
+    def _network(self, clouds: list[np.ndarray], turns: np.ndarray | None = None) -> dict[str, torch.Tensor]:
         x = torch.as_tensor(np.stack(clouds), dtype=torch.float32, device=self.device)
-        return self.module(x)
+        turn = None if turns is None else torch.as_tensor(turns, dtype=torch.float32, device=self.device)
+        return self.module(x, turn)
+
+    def _turns(self, items: list[dict[str, Any]], repeat: int = 1) -> np.ndarray | None:
+        """``[len(items) * repeat, 3, 3]``: each item's ``turn`` (a retry's, :meth:`_retry`; the identity for
+        the others) ``repeat`` times; None when no item has one."""
+        if all(it.get("turn") is None for it in items):
+            return None
+        turns = [np.eye(3) if it.get("turn") is None else np.asarray(it["turn"], np.float64) for it in items]
+        return np.repeat(np.stack(turns), repeat, axis=0)
 
     def fit_prepared(self, items: list[dict[str, Any]]) -> list[FitResult]:
         """Fit a batch of :meth:`prepare` outputs."""
+        import roma
+
+        results, exports = self._fit_batch(items)
+        if self.retries and self.refine and self.check:
+            self._retry(items, results, exports)
+        for r, (betas, pose_aa, verts_m) in zip(results, exports, strict=True):
+            r.anny_note = self.anny_note
+            if self.anny_export is not None and r.written:
+                rot = roma.rotvec_to_rotmat(torch.as_tensor(pose_aa, dtype=torch.float64)).numpy()
+                try:
+                    r.anny = self.anny_export.export(betas, rot, verts_m)
+                    r.timings["anny"] = r.anny["seconds"]
+                except Exception as exc:  # noqa: BLE001 - the fit stands without its Anny export
+                    r.anny_note = f"failed: {type(exc).__name__}: {exc}"
+                    r.warnings.append(f"Anny export {r.anny_note}")
+        return results
+
+    def _retry(self, items: list[dict[str, Any]], results: list[FitResult], exports: list[tuple]) -> None:
+        """Fit again the full scans whose fit the check doubts and whose surface score is above
+        ``retry_above_cm``: ``retries`` times each, from the network's reading of the scan turned by one of
+        :func:`retry_turns` (with draws of its own), every step as for the first fit; the fit with the lowest
+        surface score on the first fit's points is kept (``results`` and ``exports`` replaced in place) and
+        recorded in :attr:`FitResult.retry`. A retry kept stays ``uncertain`` (flag ``refitted``) even where
+        the check passes it: it was picked by its surface, which wrong vertices can explain too."""
+        from arteq.fit.crossing import surface_score
+
+        def score(r: FitResult, pts: np.ndarray, centre: np.ndarray) -> float:
+            if r.vertices is None:
+                return float("inf")
+            return surface_score(pts, r.vertices.astype(np.float64) * r.scale_to_m - centre, self.subset)
+
+        doubted, first = [], {}
+        for i, r in enumerate(results):
+            if r.scan_mode != "full" or r.vertices is None or not r.uncertain_reason:
+                continue
+            pts = r.scan_points.astype(np.float64) * r.scale_to_m - items[i]["center"]
+            first[i] = (pts, score(r, pts, items[i]["center"]))
+            if first[i][1] > self.retry_above_cm:
+                doubted.append(i)
+        if not doubted:
+            return
+        t0 = time.perf_counter()
+        turns, n = retry_turns(self.retries), self.retries
+        tries = [{**items[i], "retry": t + 1, "turn": turns[t]} for i in doubted for t in range(n)]
+        res_t, exp_t = self._fit_batch(tries)
+        seconds = (time.perf_counter() - t0) / len(doubted)
+        for j, i in enumerate(doubted):
+            pts, own = first[i]
+            cands = [(own, results[i], exports[i])]
+            cands += [(score(res_t[j * n + t], pts, items[i]["center"]), res_t[j * n + t], exp_t[j * n + t])
+                      for t in range(n)]  # fmt: skip
+            best = int(np.argmin([c[0] for c in cands]))
+            picked = cands[best][1]
+            picked.retry = {"scores_cm": [round(float(c[0]), 4) for c in cands], "picked": best}
+            if best and picked.status == "ok":  # a retry the check passes stays flagged, as a crossing refit
+                picked.quality["flags"].append("refitted")
+                picked.quality["first_doubt"] = results[i].uncertain_reason
+                picked.uncertain_reason = describe_flags(picked.quality)
+                picked.status = "refused" if self.strict else "uncertain"
+                what = "refused (--strict)" if self.strict else "written, check it"
+                picked.message = f"{picked.name}: uncertain fit, {what} ({picked.uncertain_reason})"
+            picked.timings = {**results[i].timings, "retry": seconds}
+            picked.timings["total"] += seconds
+            results[i], exports[i] = picked, cands[best][2]
+
+    def _fit_batch(self, items: list[dict[str, Any]]) -> tuple[list[FitResult], list[tuple]]:
+        """Fit a batch of :meth:`prepare` outputs without the Anny export; also returns each fit's
+        ``(betas, pose_aa, vertices in metres)`` for it."""
         from scipy.spatial import cKDTree
 
         if not items:
-            return []
+            return [], []
         t0 = time.perf_counter()
         net_in, ref_in, clouds = [], [], []  # clouds: every draw of every scan (net_in: the first ones)
         k = self.net_draws
@@ -660,10 +791,15 @@ class Fitter:
             if it["denoised"]:  # on the points the noise was measured on (a dense scan: a subsample)
                 sub = it.get("subsample")
                 src = denoise(src if sub is None else src[sub])
-            net_in.append(resample(src, self.net_points, rng))
+            first = resample(src, self.net_points, rng)
             ref_in.append(resample(it["centred"], self.points, rng))
-            clouds += [net_in[-1]] + [resample(src, self.net_points, rng) for _ in range(k - 1)]
-        pred = self._network(clouds)
+            if it.get("retry"):  # a retry: the same points refined, the network's draws its own
+                rng = np.random.default_rng((self.seed, int(it["retry"])))
+                first = resample(src, self.net_points, rng)
+            net_in.append(first)
+            clouds += [first] + [resample(src, self.net_points, rng) for _ in range(k - 1)]
+        turns = self._turns(items, k)
+        pred = self._network(clouds) if turns is None else self._network(clouds, turns)
         probs_draws = pred["part_probs"].float().cpu().numpy()  # [B * k, n, K] (waits for a GPU)
         if k > 1:  # the first draw's outputs; pose, shape and translation the mean of all draws'
             mean = mean_prediction(pred, k)
@@ -697,7 +833,8 @@ class Fitter:
         if rows:
             t1 = time.perf_counter()
             second = self._second_starts([net_in[i] for i in rows], [near[i] for i in rows],
-                                         {k: pred[k][rows] for k in ("betas", "transl")})  # fmt: skip
+                                         {k: pred[k][rows] for k in ("betas", "transl")},
+                                         self._turns([items[i] for i in rows]))  # fmt: skip
             t_net += time.perf_counter() - t1
         t1 = time.perf_counter()
         dtype = self.body.v_template.dtype
@@ -868,32 +1005,29 @@ class Fitter:
                     parts_seen=counts[i] >= max(MIN_PART_POINTS, MIN_PART_SHARE * self.points),
                 )
             )
-        for i, r in enumerate(results):
+        for r in results:
             t = r.timings
             t["total"] = t["clean"] + t["network"] + t["scan_mode"] + t["refine"] + t["check"] + t["crossing"]
-            r.anny_note = self.anny_note
-            if self.anny_export is not None and r.written:
-                rot = roma.rotvec_to_rotmat(torch.as_tensor(pose_aa[i], dtype=torch.float64)).numpy()
-                try:
-                    r.anny = self.anny_export.export(betas[i], rot, verts[i] + items[i]["center"])
-                    t["anny"] = r.anny["seconds"]
-                except Exception as exc:  # noqa: BLE001 - the fit stands without its Anny export
-                    r.anny_note = f"failed: {type(exc).__name__}: {exc}"
-                    r.warnings.append(f"Anny export {r.anny_note}")
-        return results
+        exports = [(betas[i], pose_aa[i], verts[i] + it["center"]) for i, it in enumerate(items)]
+        return results, exports
 
     @torch.no_grad()
     def _second_starts(
-        self, net_in: list[np.ndarray], near: list[np.ndarray], pred: dict[str, torch.Tensor]
-    ) -> dict[str, Any]:
+        self, net_in: list[np.ndarray], near: list[np.ndarray], pred: dict[str, torch.Tensor],
+        turns: np.ndarray | None = None,
+    ) -> dict[str, Any]:  # fmt: skip
         """The second network's starts for the scans given (``pred``: this model's ``betas`` and ``transl``
         of those scans): its local rotations, this model's betas, the translation placed for that body with
         its part weights, and its part probabilities at the refinement's points (``near``: each one's
-        network point)."""
+        network point). ``turns``: the network reads the clouds turned (:func:`turn_back`)."""
         from arteq.models.placement import estimate_translation
 
         x = torch.as_tensor(np.stack(net_in), dtype=torch.float32, device=self.device)
-        other = self.second.net(x)
+        if turns is None:
+            other = self.second.net(x)
+        else:
+            turn = torch.as_tensor(turns, dtype=torch.float32, device=self.device)
+            other = turn_back(self.second.net(x @ turn.transpose(-1, -2)), turn)
         local = other["local_rotmats"].float()
         betas = pred["betas"].float()
         posed = self.body(

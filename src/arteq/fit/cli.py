@@ -49,6 +49,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--net-draws", type=int, default=None, metavar="K",
                     help="the network's pose and shape averaged over K random subsets of each scan (default: "
                     "arteq.fit.api.NET_DRAWS)")  # fmt: skip
+    ap.add_argument("--retries", type=int, default=None, metavar="K",
+                    help="fit a doubtful full scan K more times, from turned readings of the scan, and keep "
+                    "the fit that explains it best (default: arteq.fit.api.RETRIES; 0: never)")  # fmt: skip
+    ap.add_argument("--retry-above", type=float, default=None, metavar="CM",
+                    help="only fits whose surface score is above this (cm; default: "
+                    "arteq.fit.api.RETRY_ABOVE_CM)")  # fmt: skip
     ap.add_argument("--preview", action=argparse.BooleanOptionalAction, default=True, help="write <name>.png")
     ap.add_argument("--overwrite", action="store_true", help="replace existing outputs (else skip them)")
     ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
@@ -127,7 +133,8 @@ def main(argv: list[str] | None = None) -> int:
                       refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny,
                       strict=args.strict, partial=args.partial, view_dir=args.view_dir,
                       crossing=args.crossing, second_start=args.second_start,
-                      shape_betas=args.shape_betas, net_draws=args.net_draws)  # fmt: skip
+                      shape_betas=args.shape_betas, net_draws=args.net_draws, retries=args.retries,
+                      retry_above_cm=args.retry_above)  # fmt: skip
         fitter = Fitter(**kwargs)
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"arteq-fit: {exc}", file=sys.stderr)
