@@ -630,7 +630,7 @@ class _LostUnlessTurned(OracleFitter):
         return p
 
 
-def test_retry_keeps_the_fit_that_explains_the_scan_best(tiny_ckpt, body):
+def test_retry_keeps_the_fit_that_explains_the_scan_best(tiny_ckpt, body, tmp_path):
     """A full scan whose first fit is lost (refined from the rest pose) and doubted by the check is fitted
     again from turned readings (here the truth): the fit kept is the best scoring one, it is the truth's,
     its record says which; without retries the lost fit stays."""
@@ -649,7 +649,13 @@ def test_retry_keeps_the_fit_that_explains_the_scan_best(tiny_ckpt, body):
     # picked by its surface, which wrong vertices can explain too: flagged although the check passes it
     assert res.status == "uncertain" and "refitted" in res.quality["flags"], res.message
     assert res.timings["retry"] > 0 and res.timings["total"] > res.timings["retry"]
-    assert res.to_json()["retry"] == res.retry and res.summary_row()["retry"] == res.retry["picked"]
+    path = write_cloud(tmp_path / "scan.npy", s["points"])
+    fit_files([path], tmp_path / "out", fitter=f, preview=False, log=lambda m: None)
+    assert json.loads((tmp_path / "out" / "scan.json").read_text())["retry"] == res.retry
+    import csv as csv_module
+
+    (row,) = csv_module.DictReader((tmp_path / "out" / "summary.csv").open())
+    assert row["retry"] == str(res.retry["picked"])
 
     def v2v(r):
         return np.linalg.norm(r.vertices - s["vertices"], axis=1).mean() * 100
