@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 import torch
 
-from arteq.fit.crossing import PAIRS, CrossingConfig, pairs_to_try, segment_gap, surface_score, swap_start
+from arteq.fit.crossing import (
+    CHAINS,
+    PAIRS,
+    CrossingConfig,
+    pairs_to_try,
+    segment_gap,
+    surface_score,
+    swap_start,
+)
 from arteq.fit.refine import RefineConfig, body_tables
 
 
@@ -53,6 +61,31 @@ def test_swap_start_points_each_segment_at_the_other_end(body, scene, pair):
     np.testing.assert_allclose(new["global_rotmats"][same], fit["global_rotmats"][same], atol=1e-5)
 
 
+@pytest.mark.parametrize("chain", list(CHAINS))
+def test_chain_swap_aims_every_segment_at_the_other_sides_end(body, scene, chain):
+    """A whole limb swapped (upper arm and forearm, thigh and shin): each segment, moved by the turns before,
+    points at where the other side's segment ended in the fit; the limb roots stay, the rest of the body
+    keeps its global rotations."""
+    s, fit = scene
+    new = _posed(
+        body, swap_start(s["pose"], fit["global_rotmats"], fit["joints"], chain), s["betas"], s["transl"]
+    )
+    first = PAIRS[CHAINS[chain][0]]
+    for pair in CHAINS[chain]:
+        lj, rj, le, re = PAIRS[pair]
+        for j, end, other in ((lj, le, re), (rj, re, le)):
+            got = new["joints"][end] - new["joints"][j]
+            want = fit["joints"][other] - new["joints"][j]
+            cos = got @ want / np.linalg.norm(got) / np.linalg.norm(want)
+            assert cos > 1 - 1e-6, (chain, pair, cos)
+    np.testing.assert_allclose(new["joints"][list(first[:2])], fit["joints"][list(first[:2])], atol=1e-5)
+    same = [k for k in range(22) if not _descends(k, first[:2])]
+    np.testing.assert_allclose(new["global_rotmats"][same], fit["global_rotmats"][same], atol=1e-5)
+    # not a pair swap's start: the second segments are aimed again
+    single = swap_start(s["pose"], fit["global_rotmats"], fit["joints"], CHAINS[chain][0])
+    assert not np.allclose(single, swap_start(s["pose"], fit["global_rotmats"], fit["joints"], chain))
+
+
 def _descends(k, roots):
     from arteq.body.skeleton import PARENTS
 
@@ -68,8 +101,29 @@ def test_pairs_to_try(scene):
     gaps = {p: segment_gap(fit["joints"], p) for p in PAIRS}
     assert all(g > 0.15 for g in gaps.values()), gaps  # an everyday pose: no two segments close
     assert pairs_to_try(fit["joints"], doubtful=False) == []
-    assert pairs_to_try(fit["joints"], doubtful=True) == list(PAIRS)
-    assert pairs_to_try(fit["joints"], doubtful=False, config=CrossingConfig(near_m=10.0)) == list(PAIRS)
+    assert pairs_to_try(fit["joints"], doubtful=True) == list(PAIRS) + list(CHAINS)
+    assert pairs_to_try(fit["joints"], doubtful=True, config=CrossingConfig(chains=False)) == list(PAIRS)
+    near = CrossingConfig(near_m=10.0)
+    assert pairs_to_try(fit["joints"], doubtful=False, config=near) == list(PAIRS) + list(CHAINS)
+    # a chain only where every pair of it is tried
+    arms = CrossingConfig(near_m=0.5 * (gaps["upper_arms"] + gaps["forearms"]))
+    if min(gaps["upper_arms"], gaps["forearms"]) < arms.near_m:
+        assert "arms" not in pairs_to_try(fit["joints"], doubtful=False, config=arms)
+    # or where all its pairs come within chain_near_m, with no pair of it tried alone
+    reach = max(gaps["upper_arms"], gaps["forearms"])
+    tried = pairs_to_try(fit["joints"], doubtful=False, config=CrossingConfig(chain_near_m=reach + 1e-3))
+    assert "arms" in tried and "upper_arms" not in tried and "forearms" not in tried
+    tried = pairs_to_try(fit["joints"], doubtful=False, config=CrossingConfig(chain_near_m=reach - 1e-3))
+    assert "arms" not in tried
+
+
+def test_crossing_config_from_strings():
+    cfg = CrossingConfig.from_strings(["chain_near_m=0.3", "chains=false"], near_m=0.2)
+    assert (cfg.chain_near_m, cfg.chains, cfg.near_m) == (0.3, False, 0.2)
+    with pytest.raises(ValueError, match="crossing setting 'chain=1'"):
+        CrossingConfig.from_strings(["chain=1"])
+    with pytest.raises(ValueError, match="is not of type bool"):
+        CrossingConfig.from_strings(["chains=maybe"])
 
 
 def test_a_crossing_is_found_and_a_good_fit_left_alone(body, scene):

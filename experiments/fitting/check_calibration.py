@@ -227,14 +227,16 @@ def surface_distance_cm(fitted: np.ndarray, truth: np.ndarray) -> float:
 def run(
     model: str | None, usable_cm: float, seed: int = 0, crossing: bool = True, gain: float | None = None,
     refine_set: tuple[str, ...] = (), net_draws: int | None = None, retries: int | None = None,
-    retry_above_cm: float | None = None,
+    retry_above_cm: float | None = None, crossing_set: tuple[str, ...] = (),
 ) -> list[dict]:  # fmt: skip
     from arteq.fit.api import Fitter
     from arteq.fit.crossing import CrossingConfig
     from arteq.fit.refine import RefineConfig
 
-    if crossing and gain is not None:
-        crossing = CrossingConfig(min_gain=gain)
+    if crossing and (gain is not None or crossing_set):
+        crossing = CrossingConfig.from_strings(crossing_set)
+        if gain is not None:
+            crossing.min_gain = gain
     cfg = RefineConfig.from_strings(refine_set)
     fitter = Fitter(ckpt=model, device="cpu", anny=False, crossing=crossing, refine_config=cfg,
                     net_draws=net_draws, retries=retries, retry_above_cm=retry_above_cm)  # fmt: skip
@@ -299,6 +301,7 @@ def main() -> None:
                     help="without the crossed-limb step (arteq.fit.crossing; tables before 2026-12-03)")
     ap.add_argument("--crossing-gain", type=float, default=None,
                     help="the crossed-limb step's margin (CrossingConfig.min_gain; default: its default)")
+    ap.add_argument("--crossing", nargs="*", default=[], metavar="KEY=VALUE", help="CrossingConfig fields")
     ap.add_argument("--usable-cm", type=float, default=3.0, help="V2V (cm) up to which a fit is usable")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="write every scan's record here (JSON)")
@@ -311,7 +314,7 @@ def main() -> None:
     t0 = time.perf_counter()
     records, ckpt = run(a.model, a.usable_cm, a.seed, crossing=not a.no_crossing, gain=a.crossing_gain,
                         refine_set=tuple(a.set), net_draws=a.net_draws, retries=a.retries,
-                        retry_above_cm=a.retry_above)  # fmt: skip
+                        retry_above_cm=a.retry_above, crossing_set=tuple(a.crossing))  # fmt: skip
     print(f"\ncheckpoint {ckpt}; {len(records)} scans in {time.perf_counter() - t0:.0f} s\n")
     print(table(records))
     if a.out:

@@ -533,8 +533,10 @@ def run_people(a) -> None:
         print(f"wrote the children and clutter scans to {out}")
         if a.export_only:
             return
-    cross = not a.no_crossing
+    from arteq.fit.crossing import CrossingConfig
     from arteq.fit.refine import RefineConfig
+
+    cross = not a.no_crossing and (CrossingConfig.from_strings(a.crossing) if a.crossing else True)
 
     cfg = RefineConfig.from_strings(a.set)
     kw = dict(
@@ -674,6 +676,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--export-only", action="store_true", help="people: write them (--export) and stop")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="people: RefineConfig fields")
+    ap.add_argument("--crossing", nargs="*", default=[], metavar="KEY=VALUE", help="people: CrossingConfig fields")
     ap.add_argument("--shape-betas", type=int, default=None, help="people: Fitter(shape_betas=...)")
     ap.add_argument("--net-draws", type=int, default=None, help="people: Fitter(net_draws=...)")
     ap.add_argument("--retries", type=int, default=None, help="people: Fitter(retries=...)")

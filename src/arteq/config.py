@@ -18,6 +18,31 @@ def to_plain(x: Any) -> Any:
     return x
 
 
+def dataclass_from_strings(cls, items: Sequence[str], what: str, **base):
+    """``cls`` (a dataclass) from ``KEY=VALUE`` strings (command lines: ``--set sigma_end=3``) over ``base``;
+    each value is read as its field's type (``true`` / ``false`` / ``1`` / ``0`` for a bool). An unknown key
+    or an unreadable value is a ``ValueError`` that names ``what`` and the item."""
+    default = cls(**base)
+    fields = default.__dataclass_fields__
+    values = dict(base)
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key not in fields:
+            names = ", ".join(fields)
+            raise ValueError(f"{what} setting {item!r}: expected KEY=VALUE with KEY one of {names}")
+        kind = type(getattr(default, key))
+        try:
+            if kind is bool:
+                if value.lower() not in ("true", "false", "1", "0"):
+                    raise ValueError(value)
+                values[key] = value.lower() in ("true", "1")
+            else:
+                values[key] = kind(value)
+        except ValueError:
+            raise ValueError(f"{what} setting {item!r}: {value!r} is not of type {kind.__name__}") from None
+    return cls(**values)
+
+
 def radii_for_points(radii: Sequence[float], num_points: int, reference_points: int = 5000) -> list[float]:
     """Ball radii given for ``reference_points`` input points, scaled to keep the same number of
     neighbours at ``num_points``: points per area scale with N, so radii scale with ``sqrt(ref / N)``.

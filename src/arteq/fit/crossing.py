@@ -41,6 +41,10 @@ PAIRS: dict[str, tuple[int, int, int, int]] = {
     "thighs": (_J["left_hip"], _J["right_hip"], _J["left_knee"], _J["right_knee"]),
     "shins": (_J["left_knee"], _J["right_knee"], _J["left_ankle"], _J["right_ankle"]),
 }
+#: whole limbs swapped at once: each pair of the chain in turn, every segment aimed at where the other side's
+#: segment ended in the fit (a cartwheel's arms fitted crossed overhead need both upper arms and forearms
+#: swapped: the upper arms alone leave the forearms pointing back across; experiments/fitting/crossing.md)
+CHAINS: dict[str, tuple[str, ...]] = {"arms": ("upper_arms", "forearms"), "legs": ("thighs", "shins")}
 
 
 @dataclass
@@ -61,11 +65,26 @@ class CrossingConfig:
     #: ``stop_margin`` (relative) stops and is not taken (experiments/fitting/stops.md)
     stop_at: int = 8
     stop_margin: float = 0.05
+    #: also try the whole limbs of :data:`CHAINS`: where all their pairs are tried, or where every pair of
+    #: the chain comes within ``chain_near_m`` (0: only the former)
+    chains: bool = True
+    chain_near_m: float = 0.0
+
+    @classmethod
+    def from_strings(cls, items: list[str] | tuple[str, ...], **base) -> CrossingConfig:
+        """A config from ``KEY=VALUE`` strings over ``base`` (:func:`arteq.config.dataclass_from_strings`)."""
+        from arteq.config import dataclass_from_strings
+
+        return dataclass_from_strings(cls, items, "crossing", **base)
 
 
 def swap_start(local: np.ndarray, global_rot: np.ndarray, joints: np.ndarray, pair: str) -> np.ndarray:
     """Local rotations ``[22, 3, 3]`` with ``pair``'s two segments each turned about its joint to point at
-    the other side's segment end (``global_rot [22, 3, 3]``, ``joints [22, 3]`` of the posed fit)."""
+    the other side's segment end (``global_rot [22, 3, 3]``, ``joints [22, 3]`` of the posed fit); for a
+    chain of :data:`CHAINS`, its pairs in turn, each segment (moved by the turns before) aimed at where the
+    other side's segment ended in the fit."""
+    if pair in CHAINS:
+        return _chain_start(local, global_rot, joints, CHAINS[pair])
     lj, rj, le, re = PAIRS[pair]
     out = np.array(local, dtype=np.float64, copy=True)
     for j, end, other in ((lj, le, re), (rj, re, le)):
@@ -74,6 +93,27 @@ def swap_start(local: np.ndarray, global_rot: np.ndarray, joints: np.ndarray, pa
         )
         turned = aim.numpy() @ global_rot[j]
         out[j] = global_rot[PARENTS[j]].T @ turned
+    return out
+
+
+def _chain_start(local: np.ndarray, global_rot: np.ndarray, joints: np.ndarray, pairs: tuple[str, ...]):
+    from arteq.fit.refine import branch_parts
+
+    g = np.array(global_rot, dtype=np.float64, copy=True)
+    pos = np.array(joints, dtype=np.float64, copy=True)
+    for pair in pairs:
+        lj, rj, le, re = PAIRS[pair]
+        for j, end, other in ((lj, le, re), (rj, re, le)):
+            aim = rotation_between(
+                torch.as_tensor(pos[end] - pos[j]), torch.as_tensor(joints[other] - pos[j])
+            ).numpy()
+            moved = branch_parts(j)  # the segment and what hangs from it turn rigidly about its joint
+            g[moved] = aim @ g[moved]
+            pos[moved] = pos[j] + (pos[moved] - pos[j]) @ aim.T
+    out = np.array(local, dtype=np.float64, copy=True)
+    for pair in pairs:
+        for j in PAIRS[pair][:2]:
+            out[j] = g[PARENTS[j]].T @ g[j]
     return out
 
 
@@ -104,8 +144,16 @@ def pairs_to_try(joints: np.ndarray, doubtful: bool, config: CrossingConfig | No
     segments come within ``near_m``."""
     cfg = config or CrossingConfig()
     if doubtful and cfg.doubtful_tries_all:
-        return list(PAIRS)
-    return [p for p in PAIRS if segment_gap(joints, p) < cfg.near_m]
+        pairs = list(PAIRS)
+    else:
+        pairs = [p for p in PAIRS if segment_gap(joints, p) < cfg.near_m]
+    if cfg.chains:  # a whole limb where every pair of it is tried, or all its pairs come within chain_near_m
+        pairs += [
+            c
+            for c, parts in CHAINS.items()
+            if all(p in pairs for p in parts) or max(segment_gap(joints, p) for p in parts) < cfg.chain_near_m
+        ]
+    return pairs
 
 
 def try_swaps(

@@ -122,20 +122,9 @@ class RefineConfig:
     def from_strings(cls, items: list[str] | tuple[str, ...], **base) -> RefineConfig:
         """A config from ``KEY=VALUE`` strings (command lines: ``--set sigma_end=3``) over ``base``; each
         value is read as its field's type. An unknown key or an unreadable value is a ``ValueError``."""
-        default = cls(**base)
-        names = ", ".join(default.__dataclass_fields__)
-        values = dict(base)
-        for item in items:
-            key, sep, value = item.partition("=")
-            if not sep or key not in default.__dataclass_fields__:
-                raise ValueError(f"refine setting {item!r}: expected KEY=VALUE with KEY one of {names}")
-            kind = type(getattr(default, key))
-            try:
-                values[key] = kind(value)
-            except ValueError:
-                msg = f"refine setting {item!r}: {value!r} is not of type {kind.__name__}"
-                raise ValueError(msg) from None
-        return cls(**values)
+        from arteq.config import dataclass_from_strings
+
+        return dataclass_from_strings(cls, items, "refine", **base)
 
 
 #: The result of :func:`refine`: :class:`arteq.results.BodyFitResult` (``pose_aa`` is None), the type
