@@ -100,21 +100,43 @@ def test_pairs_to_try(scene):
     s, fit = scene
     gaps = {p: segment_gap(fit["joints"], p) for p in PAIRS}
     assert all(g > 0.15 for g in gaps.values()), gaps  # an everyday pose: no two segments close
-    assert pairs_to_try(fit["joints"], doubtful=False) == []
+    only_pairs = CrossingConfig(chain_near_m=0.0)
+    assert pairs_to_try(fit["joints"], doubtful=False, config=only_pairs) == []
     assert pairs_to_try(fit["joints"], doubtful=True) == list(PAIRS) + list(CHAINS)
     assert pairs_to_try(fit["joints"], doubtful=True, config=CrossingConfig(chains=False)) == list(PAIRS)
     near = CrossingConfig(near_m=10.0)
     assert pairs_to_try(fit["joints"], doubtful=False, config=near) == list(PAIRS) + list(CHAINS)
-    # a chain only where every pair of it is tried
-    arms = CrossingConfig(near_m=0.5 * (gaps["upper_arms"] + gaps["forearms"]))
-    if min(gaps["upper_arms"], gaps["forearms"]) < arms.near_m:
-        assert "arms" not in pairs_to_try(fit["joints"], doubtful=False, config=arms)
-    # or where all its pairs come within chain_near_m, with no pair of it tried alone
-    reach = max(gaps["upper_arms"], gaps["forearms"])
-    tried = pairs_to_try(fit["joints"], doubtful=False, config=CrossingConfig(chain_near_m=reach + 1e-3))
+    # a chain where every pair of it is tried, not where only one is
+    lo, hi = sorted((gaps["upper_arms"], gaps["forearms"]))
+    assert hi - lo > 1e-3, gaps
+    one = CrossingConfig(near_m=0.5 * (lo + hi), chain_near_m=0.0)
+    tried = pairs_to_try(fit["joints"], doubtful=False, config=one)
+    assert "arms" not in tried and len({"upper_arms", "forearms"} & set(tried)) == 1
+    # an everyday pose's arms hang: not raised, so no arms chain by nearness, however near
+    far = CrossingConfig(chain_near_m=10.0)
+    assert "arms" not in pairs_to_try(fit["joints"], doubtful=False, config=far)
+
+
+def test_raised_arms_that_come_close_try_the_arms_chain(scene):
+    """Arms overhead that come close (a crossing fitted as parallel arms) try the whole arms swapped."""
+    from arteq.body.skeleton import JOINT_NAMES
+    from arteq.fit.refine import branch_parts
+
+    s, fit = scene
+    j = {n: i for i, n in enumerate(JOINT_NAMES)}
+    joints = np.array(fit["joints"], dtype=np.float64)
+    up = joints[j["neck"]] - joints[j["pelvis"]]
+    up /= np.linalg.norm(up)
+    raised = joints.copy()
+    for side in ("left", "right"):  # each arm mirrored about its shoulder's horizontal plane: overhead
+        sh = j[f"{side}_shoulder"]
+        arm = list(branch_parts(sh))
+        raised[arm] -= 2 * ((joints[arm] - joints[sh]) @ up)[:, None] * up
+    gap = max(segment_gap(raised, p) for p in CHAINS["arms"])
+    tried = pairs_to_try(raised, doubtful=False, config=CrossingConfig(chain_near_m=gap + 1e-3))
     assert "arms" in tried and "upper_arms" not in tried and "forearms" not in tried
-    tried = pairs_to_try(fit["joints"], doubtful=False, config=CrossingConfig(chain_near_m=reach - 1e-3))
-    assert "arms" not in tried
+    assert "arms" not in pairs_to_try(raised, doubtful=False, config=CrossingConfig(chain_near_m=gap - 1e-3))
+    assert "arms" not in pairs_to_try(joints, doubtful=False, config=CrossingConfig(chain_near_m=10.0))
 
 
 def test_crossing_config_from_strings():

@@ -11,8 +11,10 @@ After the refinement, for a fit that the check doubts or whose two segments of a
 :attr:`CrossingConfig.near_m`, where a crossing happens), each pair of :data:`PAIRS` is tried swapped:
 both segments are turned about their joints to point at the other side's segment end (:func:`swap_start`,
 the children follow), and the body is refined again from there without part gating (the network's sides
-are what is in doubt). The fit itself is refined again the same way (``none``), so that every candidate
-has had the same iterations; a swap that scores clearly above ``none`` after
+are what is in doubt). Whole limbs (:data:`CHAINS`: arms, legs) are tried where all their pairs are, or
+where both limbs are raised and close (:func:`pairs_to_try`; arms crossed overhead fitted as parallel
+arms). The fit itself is refined again the same way (``none``), so that every candidate has had the same
+iterations; a swap that scores clearly above ``none`` after
 :attr:`CrossingConfig.stop_at` of them stops there and is not taken (none such won later on the measured
 sets). A swap is kept when its surface score (:func:`surface_score`, symmetric robust Chamfer in cm) is
 lower than ``none``'s by :attr:`CrossingConfig.min_gain` (relative), else ``none`` is kept when it scores
@@ -65,10 +67,12 @@ class CrossingConfig:
     #: ``stop_margin`` (relative) stops and is not taken (experiments/fitting/stops.md)
     stop_at: int = 8
     stop_margin: float = 0.05
-    #: also try the whole limbs of :data:`CHAINS`: where all their pairs are tried, or where every pair of
-    #: the chain comes within ``chain_near_m`` (0: only the former)
+    #: also try the whole limbs of :data:`CHAINS`: where all their pairs are tried, or where both limbs
+    #: are raised (each limb's end ``chain_raised_m`` beyond its root along the pelvis -> neck axis: arms
+    #: overhead) and every pair of the chain comes within ``chain_near_m`` (0: only the former)
     chains: bool = True
-    chain_near_m: float = 0.0
+    chain_near_m: float = 0.3
+    chain_raised_m: float = 0.1
 
     @classmethod
     def from_strings(cls, items: list[str] | tuple[str, ...], **base) -> CrossingConfig:
@@ -147,13 +151,24 @@ def pairs_to_try(joints: np.ndarray, doubtful: bool, config: CrossingConfig | No
         pairs = list(PAIRS)
     else:
         pairs = [p for p in PAIRS if segment_gap(joints, p) < cfg.near_m]
-    if cfg.chains:  # a whole limb where every pair of it is tried, or all its pairs come within chain_near_m
+    if cfg.chains:  # a whole limb where every pair of it is tried, or raised limbs that come close
         pairs += [
-            c
-            for c, parts in CHAINS.items()
-            if all(p in pairs for p in parts) or max(segment_gap(joints, p) for p in parts) < cfg.chain_near_m
+            c for c, parts in CHAINS.items() if all(p in pairs for p in parts) or _near_raised(joints, c, cfg)
         ]
     return pairs
+
+
+def _near_raised(joints: np.ndarray, chain: str, cfg: CrossingConfig) -> bool:
+    """Both limbs of ``chain`` raised (the end ``chain_raised_m`` beyond the root along pelvis -> neck) and
+    every pair of it within ``chain_near_m``: arms overhead, where a crossing reads as parallel arms."""
+    parts = CHAINS[chain]
+    up = joints[_J["neck"]] - joints[_J["pelvis"]]
+    up = up / max(float(np.linalg.norm(up)), 1e-9)
+    lj, rj = PAIRS[parts[0]][:2]
+    le, re = PAIRS[parts[-1]][2:]
+    if min(float((joints[le] - joints[lj]) @ up), float((joints[re] - joints[rj]) @ up)) < cfg.chain_raised_m:
+        return False
+    return max(segment_gap(joints, p) for p in parts) < cfg.chain_near_m
 
 
 def try_swaps(
