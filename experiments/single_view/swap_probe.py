@@ -85,7 +85,8 @@ def main() -> None:
             pick = int(np.argmin(score))
             cells = [("**" if k == pick else "") + f"{v2v[k]:.1f} / {score[k]:.2f}" + ("**" if k == pick else "")
                      for k in range(n)]  # fmt: skip
-            lines.append(f"| {split} | {i} | {fit_v2v:.1f} | " + " | ".join(cells) + f" | {min(v2v):.1f} | {v2v[pick]:.1f} |")
+            tail = f" | {min(v2v):.1f} | {v2v[pick]:.1f} |"
+            lines.append(f"| {split} | {i} | {fit_v2v:.1f} | " + " | ".join(cells) + tail)
             summary.setdefault(split, []).append((fit_v2v, v2v[0], min(v2v), v2v[pick]))
             print(lines[-1], flush=True)
             Path(a.out).write_text("\n".join(lines) + "\n")
