@@ -388,10 +388,11 @@ NET_DRAWS = 4
 #: :class:`Fitter`'s ``retries`` (``arteq-fit --retries K``): a full scan's fit the check doubts and whose
 #: surface score (:func:`arteq.fit.crossing.surface_score`, cm) is above :data:`RETRY_ABOVE_CM` is fitted
 #: again K times, from the network's reading of the scan with other draws and then turned by
-#: :func:`retry_turns`, and the fit that explains the scan best is kept. Off by default: on the check's
-#: labelled sets 3 retries gave 2 more usable fits of 45 per seed but lost others further, for twice the
-#: time (experiments/fitting/retries.md).
-RETRIES = 0
+#: :func:`retry_turns`, and the fit that explains the scan best is kept. One by default since 2026-12-05: on
+#: the check's labelled sets 1-2 more usable fits of 45 per seed (3 retries: 2-3) and none lost, some lost
+#: fits further off, 21 % more time there (57 % with 3), nothing on scans the check passes
+#: (experiments/fitting/retries.md, last section).
+RETRIES = 1
 RETRY_ABOVE_CM = 2.0
 
 
