@@ -89,12 +89,13 @@ def test_pose_head_on_a_subset_of_parts_matches_the_full_call():
     torch.testing.assert_close(sub["weights"], full["weights"][:, [0, 3, 9]])
 
 
+@pytest.mark.parametrize("sides", ["torso", "roots"])
 @pytest.mark.parametrize("pooling", ["predicted", "ground truth"])
-def test_network_with_torso_sides_stays_equivariant(pooling):
+def test_network_with_torso_sides_stays_equivariant(pooling, sides):
     # Rotating the cloud by a group element: the parts (sides included) do not change, every part's
     # rotation turns by that element (float64, to rounding).
     torch.manual_seed(0)
-    net = ArtEqNet(**SMALL, sides="torso").double().eval()
+    net = ArtEqNet(**SMALL, sides=sides).double().eval()
     pts = _cloud()
     labels = torch.arange(120).remainder(22)[None] if pooling == "ground truth" else None
     for order in (2, 3, 5):
@@ -145,3 +146,30 @@ def test_bad_side_settings_are_errors():
         ArtEqNet(**SMALL, sides="mirror")
     with pytest.raises(ValueError, match="side_scale"):
         ArtEqNet(**SMALL, sides="torso", side_scale=0.0)
+
+
+def test_roots_sides_read_each_limb_in_its_root_parts_frame():
+    """A body folded at the waist: the pelvis faces +x-left, spine3 turned 180 degrees about the up axis.
+    ``roots`` puts a knee-pair point at +x on the left (the pelvis's frame) and an elbow-pair point at +x on
+    the right (spine3's); ``torso`` (their chordal mean, here the pelvis's) puts both on the left."""
+    j = {n: i for i, n in enumerate(JOINT_NAMES)}
+    pts = torch.tensor([[[0.0, 0, 0], [0, 0, 0.5], [0.2, 0, -0.3], [0.2, 0, 0.4]]], dtype=torch.float64)
+    weights = torch.zeros(1, 4, 22, dtype=torch.float64)
+    weights[0, 0, j["pelvis"]] = weights[0, 1, j["spine3"]] = 1.0
+    logits = torch.zeros(1, 4, 22, dtype=torch.float64)
+    logits[0, 2, [j["left_knee"], j["right_knee"]]] = 5.0
+    logits[0, 3, [j["left_elbow"], j["right_elbow"]]] = 5.0
+    torso = torch.eye(3, dtype=torch.float64).repeat(1, 4, 1, 1)
+    torso[0, TORSO_PARTS.index(j["spine3"])] = torch.diag(
+        torch.tensor([-1.0, -1.0, 1.0], dtype=torch.float64)
+    )
+    got = {}
+    for mode in ("torso", "roots"):
+        net = ArtEqNet(**SMALL, sides=mode).double().eval()
+        got[mode] = net._resolve_sides(logits, pts, weights, torso).exp()[0]
+    for mode, elbow_side in (("torso", "left"), ("roots", "right")):
+        p = got[mode]
+        assert p[2, j["left_knee"]] > 0.99 * (p[2, j["left_knee"]] + p[2, j["right_knee"]]), mode
+        other = "right" if elbow_side == "left" else "left"
+        assert p[3, j[f"{elbow_side}_elbow"]] > 100 * p[3, j[f"{other}_elbow"]], mode
+        torch.testing.assert_close(p.sum(-1), torch.ones(4, dtype=torch.float64))

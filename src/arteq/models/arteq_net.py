@@ -12,7 +12,7 @@ from arteq.body.skeleton import NUM_JOINTS, PARENTS, global_to_local
 from arteq.equivariant import EquivariantBackbone, group_rotations
 from arteq.models.heads import PartSegmenter, PoseHead, ShapeHead, part_geometry, pool_parts
 from arteq.models.precision import full_precision, upcast
-from arteq.models.sides import TORSO_PARTS, resolve_sides, side_mode, torso_frame
+from arteq.models.sides import ROOTS, TORSO_PARTS, resolve_sides, side_mode, torso_frame
 
 
 class ArtEqNet(nn.Module):
@@ -29,7 +29,9 @@ class ArtEqNet(nn.Module):
         sides: how a point's side (left or right limb) is decided: ``"learned"`` (the segmenter's own
             22-way answer; what checkpoints from before the option hold) or ``"torso"`` (the segmenter's
             side-free answer split by the point's lateral coordinate in the predicted torso frame,
-            :mod:`arteq.models.sides`; no parameters). ``side_scale``: the width in metres of that split.
+            :mod:`arteq.models.sides`; no parameters) or ``"roots"`` (the same in the frame of the torso
+            part each limb hangs from: legs the pelvis's, arms spine3's). ``side_scale``: the width in
+            metres of that split.
 
     All arguments are plain values so that the configuration round-trips through checkpoints.
     """
@@ -95,7 +97,7 @@ class ArtEqNet(nn.Module):
         seg_logits = self.segmenter(self.segmenter.invariant(feats))
         # probabilities in float32 at least (under mixed precision the logits may be bfloat16)
         part_probs = torch.softmax(seg_logits, dim=-1, dtype=upcast(seg_logits).dtype)
-        side_frame = self.sides == "torso"
+        side_frame = self.sides in ("torso", "roots")
         if gt_labels is not None:  # stage 1: pool the ground-truth parts
             pool_weights = F.one_hot(gt_labels, self.num_parts).to(feats.dtype)
             pose = self._pose(feats, points, pool_weights)
@@ -158,11 +160,18 @@ class ArtEqNet(nn.Module):
         self, seg_logits: torch.Tensor, points: torch.Tensor, weights: torch.Tensor, torso: torch.Tensor
     ) -> torch.Tensor:
         """:func:`arteq.models.sides.resolve_sides` in the torso frame of ``weights`` and the torso's
-        predicted rotations ``torso [B, 4, 3, 3]`` (no gradient through the frame)."""
+        predicted rotations ``torso [B, 4, 3, 3]`` (no gradient through the frame); ``sides: roots``: each
+        limb in its root part's frame (:data:`arteq.models.sides.ROOTS`)."""
         with full_precision(points):
             pts = upcast(points)
-            centre, left = torso_frame(pts.detach(), weights.detach(), torso.detach())
-            return resolve_sides(seg_logits, pts, centre, left, self.side_scale)
+            if self.sides == "torso":
+                centre, left = torso_frame(pts.detach(), weights.detach(), torso.detach())
+                return resolve_sides(seg_logits, pts, centre, left, self.side_scale)
+            out = seg_logits
+            for root, lefts in ROOTS.items():
+                centre, left = torso_frame(pts.detach(), weights.detach(), torso.detach(), parts=(root,))
+                out = resolve_sides(out, pts, centre, left, self.side_scale, lefts=lefts)
+            return out
 
 
 def _scatter_parts(x: torch.Tensor, cols: list[int], num_parts: int) -> torch.Tensor:
