@@ -87,26 +87,13 @@ def swap_start(local: np.ndarray, global_rot: np.ndarray, joints: np.ndarray, pa
     the other side's segment end (``global_rot [22, 3, 3]``, ``joints [22, 3]`` of the posed fit); for a
     chain of :data:`CHAINS`, its pairs in turn, each segment (moved by the turns before) aimed at where the
     other side's segment ended in the fit."""
-    if pair in CHAINS:
-        return _chain_start(local, global_rot, joints, CHAINS[pair])
-    lj, rj, le, re = PAIRS[pair]
-    out = np.array(local, dtype=np.float64, copy=True)
-    for j, end, other in ((lj, le, re), (rj, re, le)):
-        aim = rotation_between(
-            torch.as_tensor(joints[end] - joints[j]), torch.as_tensor(joints[other] - joints[j])
-        )
-        turned = aim.numpy() @ global_rot[j]
-        out[j] = global_rot[PARENTS[j]].T @ turned
-    return out
-
-
-def _chain_start(local: np.ndarray, global_rot: np.ndarray, joints: np.ndarray, pairs: tuple[str, ...]):
     from arteq.fit.refine import branch_parts
 
+    pairs = CHAINS.get(pair, (pair,))
     g = np.array(global_rot, dtype=np.float64, copy=True)
     pos = np.array(joints, dtype=np.float64, copy=True)
-    for pair in pairs:
-        lj, rj, le, re = PAIRS[pair]
+    for p in pairs:
+        lj, rj, le, re = PAIRS[p]
         for j, end, other in ((lj, le, re), (rj, re, le)):
             aim = rotation_between(
                 torch.as_tensor(pos[end] - pos[j]), torch.as_tensor(joints[other] - pos[j])
@@ -115,8 +102,8 @@ def _chain_start(local: np.ndarray, global_rot: np.ndarray, joints: np.ndarray, 
             g[moved] = aim @ g[moved]
             pos[moved] = pos[j] + (pos[moved] - pos[j]) @ aim.T
     out = np.array(local, dtype=np.float64, copy=True)
-    for pair in pairs:
-        for j in PAIRS[pair][:2]:
+    for p in pairs:
+        for j in PAIRS[p][:2]:
             out[j] = g[PARENTS[j]].T @ g[j]
     return out
 
