@@ -120,7 +120,13 @@ def swapped_errors(body, res, betas, pose, gt) -> dict:
 
 
 def run_arm(
-    arm: str, n: int, threads: int, ckpt: str | None = None, splits=None, refine_set=(), net_draws: int | None = None
+    arm: str,
+    n: int,
+    threads: int,
+    ckpt: str | None = None,
+    splits=None,
+    refine_set=(),
+    net_draws: int | None = None,
 ) -> list:
     from scipy.spatial import cKDTree
 
@@ -306,7 +312,9 @@ def main() -> None:
     ap.add_argument("--table", action="store_true", help="write table.md from the results present")
     ap.add_argument("--splits", nargs="*", default=None, help="only these views (full front side back top)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
-    ap.add_argument("--net-draws", type=int, default=None, help="Fitter(net_draws=...) (default: the Fitter's)")
+    ap.add_argument(
+        "--net-draws", type=int, default=None, help="Fitter(net_draws=...) (default: the Fitter's)"
+    )
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -48,7 +48,9 @@ def main() -> None:
              "|---|---|---:|" + "---|" * len(starts) + "---:|---:|"]  # fmt: skip
     summary: dict[str, list] = {}
     incidence = body_tables(body, fitter.refine_config.m2s_vertices).incidence
-    rc = dataclasses.replace(fitter.refine_config, iters=30, gate_frac=0.0, top_parts=NUM_JOINTS, swing_at=-1.0)
+    rc = dataclasses.replace(
+        fitter.refine_config, iters=30, gate_frac=0.0, top_parts=NUM_JOINTS, swing_at=-1.0
+    )
     rc.sigma_start = rc.sigma_end
     for split in a.splits:
         d = data[f"test_view_{split}"]
@@ -63,7 +65,9 @@ def main() -> None:
             pts = res.scan_points.astype(np.float64) - c
             local = roma.rotvec_to_rotmat(torch.as_tensor(res.pose_aa, dtype=torch.float64)).numpy()
             joints = res.joints.astype(np.float64) - c
-            locs = [local if s == "none" else swap_start(local, res.global_rotmats, joints, s) for s in starts]
+            locs = [
+                local if s == "none" else swap_start(local, res.global_rotmats, joints, s) for s in starts
+            ]
             n = len(starts)
             dtype = body.v_template.dtype
             init = {
@@ -96,7 +100,7 @@ def main() -> None:
         m = np.mean(rows, axis=0)
         lines.append(f"| {split} | {len(rows)} | {m[0]:.2f} | {m[1]:.2f} | {m[2]:.2f} | {m[3]:.2f} |")
     Path(a.out).write_text("\n".join(lines) + "\n")
-    print("\n".join(lines[-(len(summary) + 2):]))
+    print("\n".join(lines[-(len(summary) + 2) :]))
 
 
 if __name__ == "__main__":
