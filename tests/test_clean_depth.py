@@ -231,9 +231,9 @@ def test_the_noise_ratio_tells_sensor_noise_from_a_surface_s_relief():
 
 
 def test_a_hand_beyond_an_occlusion_edge_of_a_side_view_without_its_camera_is_kept(anny22):
-    """Side view 3 of the held-out single-view set, as a point file gives it (no camera position): its far
-    hand and wrist lie beyond an occlusion edge, 120 points the cluster step took for a separate object
-    (the fit then lost that arm: anny_scan's side view 3, 10.2 -> 3.9 cm V2V, experiments/single_view).
+    """Side view 3 of anny22's held-out single-view set, as a point file gives it (no camera position): its
+    far hand and wrist lie beyond an occlusion edge, 120 points the cluster step took for a separate object
+    (on anny_scan's own set such cuts lost the arm: its side view 3, 10.2 -> 3.9 cm V2V with the rule).
     The body is one-sided, so it grows from the estimated camera direction and keeps them; nothing else of
     the scan changes."""
     from arteq.data import BodyScanDataModule
