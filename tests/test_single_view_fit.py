@@ -55,6 +55,41 @@ def test_the_estimated_camera_direction_and_the_visible_vertices(anny22):
         visible_vertices(v.numpy(), normals)
 
 
+def test_the_camera_direction_refined_from_the_normals(anny22):
+    """facing_direction: the direction every seen point faces, nearer the simulator's camera than the first
+    estimate on side and top views of everyday poses (where the first estimate is worst; 8 scans: 17 -> 10
+    degrees on average); too few points give the start back."""
+    import roma
+
+    from arteq.data.dataset import seeded_generator
+    from arteq.data.single_view import single_view_scan
+    from arteq.fit.partial import facing_direction
+
+    def angle(a, b):
+        return np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1)))
+
+    poses = SyntheticIDPoses()
+    first, refined = [], []
+    for i in range(8):
+        pose = roma.rotvec_to_rotmat(poses.sample(i, seeded_generator(3, "pose", i))["pose"].float())
+        out = anny22(betas=torch.zeros(1, 10), pose=pose[None])
+        view = ("side", "top")[i % 2]
+        v, root = out.vertices[0].double(), out.global_rotmats[0, 0]
+        scan = single_view_scan(v, anny22.faces, anny22.lbs_weights, out.joints[0, 0], root, 4000,
+                                seeded_generator(i, view), view=view)  # fmt: skip
+        pts = scan["points"].numpy()
+        to_cam = scan["camera"].double().numpy() - pts.mean(0)
+        _, d0 = one_sidedness(pts)
+        d1 = facing_direction(pts, d0)
+        assert abs(np.linalg.norm(d1) - 1) < 1e-9
+        first.append(angle(d0, to_cam))
+        refined.append(angle(d1, to_cam))
+    assert np.mean(refined) < np.mean(first) - 3, (first, refined)
+    assert max(refined) < 25, refined
+    d = np.array([0.0, 1.0, 0.0])
+    assert np.array_equal(facing_direction(np.zeros((5, 3)), d), d)
+
+
 @pytest.fixture(scope="module")
 def tiny_fitter(tmp_path_factory):
     from omegaconf import OmegaConf

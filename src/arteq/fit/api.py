@@ -1190,7 +1190,7 @@ class Fitter:
     ) -> list[dict[str, Any]]:  # fmt: skip
         """Full or partial, and why, per scan (see the class docstring); a partial scan's translation in
         ``init`` is replaced by :func:`arteq.models.placement.align_translation`'s."""
-        from arteq.fit.partial import PARTIAL_SCORE, one_sidedness
+        from arteq.fit.partial import PARTIAL_SCORE, facing_direction, one_sidedness
         from arteq.models.placement import align_translation
 
         modes = []
@@ -1199,6 +1199,8 @@ class Fitter:
             if self.partial is not False:  # on a fixed point count: the score depends on the density
                 cloud = resample(it["centred"], 4000, np.random.default_rng(self.seed))
                 score, estimate = one_sidedness(cloud)
+                if score > PARTIAL_SCORE or self.partial:  # the direction refined from the normals
+                    estimate = facing_direction(cloud, estimate)
             m = {"partial": True, "view_dir": None, "camera": None, "score": score}
             viewpoint = it.get("viewpoint")
             if self.partial is False:

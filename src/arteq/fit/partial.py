@@ -9,7 +9,8 @@
   of the near-best directions is the estimated camera direction (8-19 degrees off, median per view), up
   to its sign: a one-sided sheet looks the same from both sides. The sign is where the surface bulges
   (:func:`bulge`): a body is convex, so seen from the camera a point's neighbours lie behind its tangent
-  plane. It needs no fit, so a poor first fit does not confuse it.
+  plane. It needs no fit, so a poor first fit does not confuse it. :func:`facing_direction` refines that
+  direction from the surface normals (what a camera sees faces it): median 15 -> 8 degrees on side views.
 * :func:`visible_vertices`: the body's vertices a camera sees, from a position (perspective, e.g. a depth
   image's camera at its origin) or a direction (far away): turned toward the camera and not hidden, by a
   z-buffer of the vertices splatted on cells ``cell_m`` wide at the body (the nearest depth per cell; a
@@ -89,6 +90,44 @@ def one_sidedness(
     direction = (near * np.sign(near @ axes[best])[:, None]).sum(0)
     direction /= np.linalg.norm(direction)
     return float(scores[best]), (direction if bulge(p, direction) <= 0 else -direction)
+
+
+def facing_direction(
+    points: np.ndarray,
+    direction: np.ndarray,
+    quantile: float = 0.05,
+    span_deg: float = 45.0,
+    max_points: int = 1500,
+    k: int = 16,
+) -> np.ndarray:
+    """A one-sided cloud's camera direction refined from its surface normals: what a camera sees faces it,
+    so the direction is the one within ``span_deg`` of ``direction`` (a first estimate, e.g.
+    :func:`one_sidedness`'s, which also orients the normals) whose ``quantile`` of ``normal . d`` over up to
+    ``max_points`` evenly strided points is the largest (the centre of the cone of directions every point
+    faces, robust to a few bad normals); a coarse search on about 600 directions, then a fine one within
+    4 degrees. Against the simulator's cameras (32 scans per view) the median error goes from 6.6 / 14.9 / 8.5
+    / 20.5 degrees (front / side / back / top, the first estimate) to 5.2 / 8.1 / 5.7 / 10.6
+    (experiments/single_view/facing/direction_probe.md); about 0.03 s."""
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=np.float64)
+    p = p[:: max(1, len(p) // max_points)]
+    d0 = np.asarray(direction, dtype=np.float64)
+    d0 = d0 / np.linalg.norm(d0)
+    if len(p) < k:
+        return d0
+    _, nn = cKDTree(p).query(p, k=k)
+    local = p[nn] - p[nn].mean(1, keepdims=True)
+    normals = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))[1][:, :, 0]
+    normals *= np.where(normals @ d0 < 0, -1.0, 1.0)[:, None]
+    best = d0
+    for count, span in ((4000, span_deg), (40000, 4.0)):
+        dirs = sphere_directions(count)
+        dirs = dirs[dirs @ best > np.cos(np.radians(span))]
+        if len(dirs) == 0:
+            break
+        best = dirs[int(np.argmax(np.quantile(normals @ dirs.T, quantile, axis=0)))]
+    return best
 
 
 def bulge(points: np.ndarray, direction: np.ndarray, k: int = 16, max_points: int = 1000) -> float:
