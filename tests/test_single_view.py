@@ -87,6 +87,32 @@ def test_a_front_view_sees_the_front_and_a_back_view_the_back(anny22):
     assert (front["points"][:, 2].mean() - back["points"][:, 2].mean()) > 0.05
 
 
+def test_a_sensor_frame_cuts_off_what_falls_outside_it(anny22):
+    """frame_px: the image is the sensor's, centred on the pelvis; at 1 m a 640 x 480 frame (1.3 x 1.0 m)
+    loses the feet and the head of a standing body, which the default crop (and a 4 m camera) keeps."""
+    from arteq.data.single_view import look_at
+
+    cut = _scan(anny22, "front", distance_m=(1.0, 1.0), frame_px=(640, 480), **CLEAN)
+    whole = _scan(anny22, "front", distance_m=(1.0, 1.0), **CLEAN)
+    far = _scan(anny22, "front", distance_m=(4.0, 4.0), frame_px=(640, 480), **CLEAN)
+    head, feet = 15, (10, 11)
+    for scan in (whole, far):
+        seen = scan["labels"].bincount(minlength=22)
+        assert seen[head] > 5 and all(seen[f] > 0 for f in feet)
+    seen = cut["labels"].bincount(minlength=22)
+    assert seen[head] == 0 and all(seen[f] == 0 for f in feet) and seen[0] > 20  # the pelvis stays
+    _, pelvis = _posed(anny22)
+    rot = look_at(cut["camera"], pelvis.double(), torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64))
+    pc = (cut["points"] - cut["camera"]) @ rot.T
+    uv = pc[:, :2] / pc[:, 2:3] * 500.0
+    assert (uv[:, 0].abs() <= 320 + 1).all() and (uv[:, 1].abs() <= 240 + 1).all()  # inside the frame
+    assert SingleViewConfig().to_dict() == {k: v for k, v in SingleViewConfig(frame_px=None).to_dict().items()}
+    assert "frame_px" not in SingleViewConfig().to_dict()  # the view sets cached before the option keep their keys
+    for bad in ((640,), (0, 480), (640.5, 480)):
+        with pytest.raises(ValueError, match="frame_px"):
+            SingleViewConfig(frame_px=bad)
+
+
 def test_noise_grows_with_depth(anny22):
     def spread(dist):
         exact = _scan(anny22, "front", seed=3, distance_m=(dist, dist), **CLEAN)["points"]
@@ -178,7 +204,7 @@ def test_view_test_sets_are_cached_and_off_by_default(toy_body, tmp_path):
     assert not isinstance(plain.make_dataset("train"), SingleViewDataset)
     with pytest.raises(ValueError, match="view_splits"):
         BodyScanDataModule(body_model=toy_body, view_splits=["test_view_under"])
-    assert set(VIEW_SPLITS) == {"test_view_front", "test_view_side", "test_view_back", "test_view_top"}
+    assert set(VIEW_SPLITS) == {"test_view_front", "test_view_side", "test_view_back", "test_view_top", "test_view_near"}
 
 
 def test_the_data_config_builds_view_sets():

@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 HERE = Path(__file__).resolve().parent
-SPLITS = ("test_view_full", "test_view_front", "test_view_side", "test_view_back", "test_view_top")
+SPLITS = ("test_view_full", "test_view_front", "test_view_side", "test_view_back", "test_view_top", "test_view_near")
 ARMS = {
     "network": {"refine": False},
     "refine_full": {"refine": True, "partial": False},

@@ -32,9 +32,10 @@ if TYPE_CHECKING:  # annotations only: importing this module does not import tor
 #: the graded OOD scale (one / two limbs out of distribution, OOD poses without self-contact).
 TEST_SPLITS = ("test_id", "test_ood", "test_ood_limb1", "test_ood_limb2", "test_ood_contact")
 #: The cached single-view test sets (``data.view_splits``, :mod:`arteq.data.single_view`): the ID test
-#: bodies each seen by one depth camera from the front, a side, behind or above, in this order. Their names
+#: bodies each seen by one depth camera from the front, a side, behind, above, or near in a 640 x 480 frame
+#: (parts cut off), in this order. Their names
 #: in ``data.view_splits``: :data:`VIEW_NAMES` or the split names (see :func:`view_split`).
-VIEW_NAMES = ("front", "side", "back", "top")
+VIEW_NAMES = ("front", "side", "back", "top", "near")
 VIEW_SPLITS = tuple(f"test_view_{v}" for v in VIEW_NAMES)
 #: Every split a test loop can report, in table order: the full-surface sets, then the view sets.
 ALL_TEST_SPLITS = (*TEST_SPLITS, *VIEW_SPLITS)
@@ -47,7 +48,7 @@ SPLIT_LABELS = {
     "test_id": "ID", "test_ood": "OOD", "test_ood_limb1": "OOD-1limb", "test_ood_limb2": "OOD-2limb",
     "test_ood_contact": "OOD-nocontact",
     "test_view_front": "front-view", "test_view_side": "side-view", "test_view_back": "back-view",
-    "test_view_top": "top-view",
+    "test_view_top": "top-view", "test_view_near": "near-view (framed)",
 }  # fmt: skip
 #: Unit line under every metrics table.
 UNITS_NOTE = "part_acc in %, v2v/mpjpe in cm (MPJPE over the 22 body joints), rot_err in degrees."

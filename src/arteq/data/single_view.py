@@ -3,8 +3,11 @@
 A virtual pinhole depth camera (focal length ``focal_px`` pixels, square pixels) is put at a random
 position around the body: ``distance_m`` from the pelvis, a heading (azimuth about the body's up axis,
 0 = in front of it) and an elevation (0 = level with the pelvis, 90 = straight above the body), looking at
-the pelvis with the body's up axis up in the image. The image is cropped to the body's projection (the
-person is always fully in view; nothing is cut at the image border).
+the pelvis with the body's up axis up in the image. By default the image is cropped to the body's
+projection (the person is always fully in view; nothing is cut at the image border). With ``frame_px =
+(width, height)`` the image is the sensor's, centred on the pelvis: what falls outside it is not seen, as
+when a person stands too near a real camera (a 640 x 480 sensor at 500 px sees 1.3 x 1.0 m at 1 m: the head
+and the lower legs are cut off; at 2 m 2.6 x 1.9 m). The ``near`` view (its own test set) does that.
 
 The depth image is an exact z-buffer of the mesh: every triangle is rasterised at the pixel centres it
 covers (vectorised: all (triangle, pixel) pairs of the triangles' bounding boxes at once), the nearest
@@ -51,6 +54,8 @@ VIEWS: dict[str, dict[str, tuple[float, float]]] = {
     "side": {"heading": (60.0, 120.0), "elevation": (-10.0, 30.0)},
     "back": {"heading": (150.0, 210.0), "elevation": (-10.0, 30.0)},
     "top": {"heading": (0.0, 360.0), "elevation": (60.0, 90.0)},
+    # a 640 x 480 sensor 1-2 m in front of the person, which it does not always hold whole (module docstring)
+    "near": {"heading": (-45.0, 45.0), "elevation": (-10.0, 30.0), "distance_m": (1.0, 2.0), "frame_px": (640, 480)},
 }
 #: Names of the cached single-view test sets (``data.view_splits``), one per entry of :data:`VIEWS`.
 VIEW_SPLITS = tuple(f"test_view_{v}" for v in VIEWS)
@@ -73,6 +78,8 @@ class SingleViewConfig:
     edge_dropout: float = 0.5
     flying: float = 0.1
     flying_max_m: float = 0.2
+    #: the sensor's image (width, height) in pixels, centred on the pelvis; None: cropped to the body
+    frame_px: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
         self.distance_m = tuple(float(x) for x in self.distance_m)
@@ -95,6 +102,13 @@ class SingleViewConfig:
             raise ValueError("data.single_view.noise_base_m and noise_quad must be >= 0")
         if not 0.0 < self.grazing_deg <= 90.0:
             raise ValueError(f"data.single_view.grazing_deg must be in (0, 90], got {self.grazing_deg}")
+        if self.frame_px is not None:
+            frame = tuple(self.frame_px)
+            if len(frame) != 2 or not all(float(x) == int(x) and 16 <= int(x) <= MAX_IMAGE_PX for x in frame):
+                raise ValueError(
+                    f"data.single_view.frame_px must be [width, height] in 16-{MAX_IMAGE_PX} px, got {self.frame_px}"
+                )
+            self.frame_px = (int(frame[0]), int(frame[1]))
 
     @classmethod
     def from_mapping(cls, cfg: Any) -> SingleViewConfig:
@@ -109,7 +123,10 @@ class SingleViewConfig:
         return cls(**cfg)
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        out = asdict(self)
+        if out["frame_px"] is None:  # the keys of the sets cached before the option existed stay as they were
+            del out["frame_px"]
+        return out
 
 
 def _u(g: torch.Generator, lo: float, hi: float) -> float:
@@ -261,7 +278,9 @@ def single_view_scan(
     verts = verts.double()
     g = generator
     heading, elevation = camera_direction(view, cfg, g)
-    dist = _u(g, *cfg.distance_m)
+    spec = VIEWS.get(view, {})
+    dist = _u(g, *spec.get("distance_m", cfg.distance_m))
+    frame = spec.get("frame_px", cfg.frame_px)
     hd, el = math.radians(heading), math.radians(elevation)
     # body axes: x = left, y = up, z = forward; heading 0 = in front, 90 = at the body's left
     local = torch.tensor(
@@ -276,9 +295,13 @@ def single_view_scan(
     if not front.any():
         raise RuntimeError("single_view_scan: the whole body is nearer to the camera than its minimum range")
     uv = vc[front, :2] / vc[front, 2:3] * f
-    # the crop: the body's projection, at most MAX_IMAGE_PX per side around the pelvis (the image centre)
-    lo = uv.amin(0).clamp_min(-MAX_IMAGE_PX / 2)
-    hi = uv.amax(0).clamp_max(MAX_IMAGE_PX / 2)
+    # the crop: the body's projection, at most MAX_IMAGE_PX per side around the pelvis (the image centre), or
+    # the part of it inside the sensor's frame
+    half = torch.tensor([MAX_IMAGE_PX / 2] * 2 if frame is None else [frame[0] / 2, frame[1] / 2], dtype=dtype)
+    lo = torch.maximum(uv.amin(0), -half)
+    hi = torch.minimum(uv.amax(0), half)
+    if (hi <= lo).any():
+        raise RuntimeError("single_view_scan: the body is outside the camera's frame")
     width, height = (int(x) + 2 for x in torch.ceil(hi - lo).tolist())
     cx, cy = 1.0 - float(lo[0]), 1.0 - float(lo[1])
     face, bary, depth = rasterize(vc, faces, f, width, height, cx, cy)
