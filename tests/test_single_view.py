@@ -111,6 +111,15 @@ def test_a_sensor_frame_cuts_off_what_falls_outside_it(anny22):
     for bad in ((640,), (0, 480), (640.5, 480)):
         with pytest.raises(ValueError, match="frame_px"):
             SingleViewConfig(frame_px=bad)
+    # frame_prob: a share of the views framed, each its own draw
+    cuts = [
+        _scan(anny22, "front", seed=s, distance_m=(1.0, 1.0), frame_px=(640, 480), frame_prob=0.5, **CLEAN)[
+            "labels"].bincount(minlength=22)[head] == 0
+        for s in range(8)
+    ]  # fmt: skip
+    assert 0 < sum(cuts) < 8, cuts
+    with pytest.raises(ValueError, match="frame_prob"):
+        SingleViewConfig(frame_prob=1.5)
 
 
 def test_noise_grows_with_depth(anny22):

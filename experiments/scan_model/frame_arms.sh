@@ -7,6 +7,7 @@
 # back, top and near view sets (the same clouds for every arm). Only the training single views differ:
 #   sv50     cropped to the body as before (the control)
 #   frame50  in a 640 x 480 frame centred on the pelvis (1-4 m: the near ones lose the head or the lower legs)
+#   frame25  half of the single views in that frame (data.single_view.frame_prob=0.5), the others cropped
 #   bash experiments/scan_model/frame_arms.sh [ARM ...]   (one thread each; outputs/frame_arms/<arm>/metrics.md)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -25,6 +26,7 @@ for arm in "${ARMS[@]}"; do
   case $arm in
     sv50) extra=() ;;
     frame50) extra=('data.single_view.frame_px=[640,480]') ;;
+    frame25) extra=('data.single_view.frame_px=[640,480]' data.single_view.frame_prob=0.5) ;;
     *) echo "unknown arm $arm" >&2; exit 2 ;;
   esac
   .venv/bin/python -m arteq.train "${COMMON[@]}" "${extra[@]}" hydra.run.dir="$OUT/$arm" > "$OUT/$arm.log" 2>&1

@@ -80,11 +80,13 @@ class SingleViewConfig:
     flying_max_m: float = 0.2
     #: the sensor's image (width, height) in pixels, centred on the pelvis; None: cropped to the body
     frame_px: tuple[int, int] | None = None
+    #: with ``frame_px``: the share of single views in that frame (the others cropped to the body)
+    frame_prob: float = 1.0
 
     def __post_init__(self) -> None:
         self.distance_m = tuple(float(x) for x in self.distance_m)
         self.elevation_deg = tuple(float(x) for x in self.elevation_deg)
-        for name in ("prob", "dropout", "edge_dropout", "flying"):
+        for name in ("prob", "dropout", "edge_dropout", "flying", "frame_prob"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"data.single_view.{name} is a probability in [0, 1], got {v}")
@@ -125,7 +127,7 @@ class SingleViewConfig:
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
         if out["frame_px"] is None:  # the keys of the sets cached before the option existed stay as they were
-            del out["frame_px"]
+            del out["frame_px"], out["frame_prob"]
         return out
 
 
@@ -281,6 +283,8 @@ def single_view_scan(
     spec = VIEWS.get(view, {})
     dist = _u(g, *spec.get("distance_m", cfg.distance_m))
     frame = spec.get("frame_px", cfg.frame_px)
+    if "frame_px" not in spec and frame is not None and cfg.frame_prob < 1.0 and _u(g, 0.0, 1.0) >= cfg.frame_prob:
+        frame = None  # this view cropped to the body (drawn only when some views are: the others' streams stay)
     hd, el = math.radians(heading), math.radians(elevation)
     # body axes: x = left, y = up, z = forward; heading 0 = in front, 90 = at the body's left
     local = torch.tensor(
