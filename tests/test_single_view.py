@@ -106,8 +106,9 @@ def test_a_sensor_frame_cuts_off_what_falls_outside_it(anny22):
     pc = (cut["points"] - cut["camera"]) @ rot.T
     uv = pc[:, :2] / pc[:, 2:3] * 500.0
     assert (uv[:, 0].abs() <= 320 + 1).all() and (uv[:, 1].abs() <= 240 + 1).all()  # inside the frame
-    assert SingleViewConfig().to_dict() == {k: v for k, v in SingleViewConfig(frame_px=None).to_dict().items()}
-    assert "frame_px" not in SingleViewConfig().to_dict()  # the view sets cached before the option keep their keys
+    assert SingleViewConfig().to_dict() == SingleViewConfig(frame_px=None).to_dict()
+    # the view sets cached before the option keep their keys
+    assert "frame_px" not in SingleViewConfig().to_dict()
     for bad in ((640,), (0, 480), (640.5, 480)):
         with pytest.raises(ValueError, match="frame_px"):
             SingleViewConfig(frame_px=bad)
@@ -213,7 +214,7 @@ def test_view_test_sets_are_cached_and_off_by_default(toy_body, tmp_path):
     assert not isinstance(plain.make_dataset("train"), SingleViewDataset)
     with pytest.raises(ValueError, match="view_splits"):
         BodyScanDataModule(body_model=toy_body, view_splits=["test_view_under"])
-    assert set(VIEW_SPLITS) == {"test_view_front", "test_view_side", "test_view_back", "test_view_top", "test_view_near"}
+    assert set(VIEW_SPLITS) == {f"test_view_{v}" for v in ("front", "side", "back", "top", "near")}
 
 
 def test_the_data_config_builds_view_sets():

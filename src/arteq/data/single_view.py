@@ -55,7 +55,12 @@ VIEWS: dict[str, dict[str, tuple[float, float]]] = {
     "back": {"heading": (150.0, 210.0), "elevation": (-10.0, 30.0)},
     "top": {"heading": (0.0, 360.0), "elevation": (60.0, 90.0)},
     # a 640 x 480 sensor 1-2 m in front of the person, which it does not always hold whole (module docstring)
-    "near": {"heading": (-45.0, 45.0), "elevation": (-10.0, 30.0), "distance_m": (1.0, 2.0), "frame_px": (640, 480)},
+    "near": {
+        "heading": (-45.0, 45.0),
+        "elevation": (-10.0, 30.0),
+        "distance_m": (1.0, 2.0),
+        "frame_px": (640, 480),
+    },
 }
 #: Names of the cached single-view test sets (``data.view_splits``), one per entry of :data:`VIEWS`.
 VIEW_SPLITS = tuple(f"test_view_{v}" for v in VIEWS)
@@ -108,7 +113,8 @@ class SingleViewConfig:
             frame = tuple(self.frame_px)
             if len(frame) != 2 or not all(float(x) == int(x) and 16 <= int(x) <= MAX_IMAGE_PX for x in frame):
                 raise ValueError(
-                    f"data.single_view.frame_px must be [width, height] in 16-{MAX_IMAGE_PX} px, got {self.frame_px}"
+                    "data.single_view.frame_px must be [width, height] in "
+                    f"16-{MAX_IMAGE_PX} px, got {self.frame_px}"
                 )
             self.frame_px = (int(frame[0]), int(frame[1]))
 
@@ -283,8 +289,10 @@ def single_view_scan(
     spec = VIEWS.get(view, {})
     dist = _u(g, *spec.get("distance_m", cfg.distance_m))
     frame = spec.get("frame_px", cfg.frame_px)
-    if "frame_px" not in spec and frame is not None and cfg.frame_prob < 1.0 and _u(g, 0.0, 1.0) >= cfg.frame_prob:
-        frame = None  # this view cropped to the body (drawn only when some views are: the others' streams stay)
+    some_framed = "frame_px" not in spec and frame is not None and cfg.frame_prob < 1.0
+    if some_framed and _u(g, 0.0, 1.0) >= cfg.frame_prob:
+        # this view cropped to the body (drawn only when some views are: the others' streams stay)
+        frame = None
     hd, el = math.radians(heading), math.radians(elevation)
     # body axes: x = left, y = up, z = forward; heading 0 = in front, 90 = at the body's left
     local = torch.tensor(
@@ -301,7 +309,8 @@ def single_view_scan(
     uv = vc[front, :2] / vc[front, 2:3] * f
     # the crop: the body's projection, at most MAX_IMAGE_PX per side around the pelvis (the image centre), or
     # the part of it inside the sensor's frame
-    half = torch.tensor([MAX_IMAGE_PX / 2] * 2 if frame is None else [frame[0] / 2, frame[1] / 2], dtype=dtype)
+    half_px = [MAX_IMAGE_PX / 2] * 2 if frame is None else [frame[0] / 2, frame[1] / 2]
+    half = torch.tensor(half_px, dtype=dtype)
     lo = torch.maximum(uv.amin(0), -half)
     hi = torch.minimum(uv.amax(0), half)
     if (hi <= lo).any():
