@@ -60,6 +60,7 @@ def test_fit_quality_tiers_on_geometry(body):
         qb = _fit(pts, v, s["betas"], parts)
         assert "sphere" in qb["flags"] and verdict(qb["flags"]) == "not_single_body", qb
         assert "of the points lie on a sphere of radius 0.30 m" in describe_flags(qb, ["sphere"])
+    assert q["tube_frac"] < 0.6 and "tube" not in q["flags"], q  # nor a tube
     half = p[p[:, 1] > v[:, 1].mean()]
     q4 = _fit(half, v, s["betas"], parts)
     assert verdict(q4["flags"]) == "uncertain" and "low_coverage" in q4["flags"], q4
@@ -67,6 +68,39 @@ def test_fit_quality_tiers_on_geometry(body):
     q5 = _fit(p, v, np.array([5.0, *s["betas"][1:]]), parts)
     assert q5["flags"] == ["implausible_shape"] and verdict(q5["flags"]) == "uncertain", q5
     assert describe_flags(q5) == "implausible shape (|beta| 5.0)"
+
+
+def _tube(kind: str, rng: np.random.Generator) -> np.ndarray:
+    """5000 points on a line, a pole, a capsule or a flat-ended cylinder about 1.7 m long, 3 mm noise."""
+    if kind == "line":
+        pts = np.c_[np.linspace(-0.85, 0.85, 5000), np.zeros((5000, 2))]
+    else:
+        mesh = {
+            "pole": trimesh.creation.cylinder(radius=0.05, height=1.7),
+            "capsule": trimesh.creation.capsule(radius=0.2, height=1.3),
+            "cylinder": trimesh.creation.cylinder(radius=0.15, height=1.7),
+        }[kind]
+        pts = np.asarray(trimesh.sample.sample_surface(mesh, 5000, seed=0)[0])
+    turn = trimesh.transformations.random_rotation_matrix(rng.random(3))[:3, :3]
+    return pts @ turn.T + rng.normal(0, 0.003, pts.shape) + [0.4, 1.0, -2.0]
+
+
+@pytest.mark.parametrize("kind", ["line", "pole", "capsule", "cylinder"])
+def test_a_tube_is_not_a_body(body, kind):
+    """A line, a pole, a capsule or a cylinder the size of a person is refused (``tube``) however well a
+    body wrapped round it explains its points (anny_scan fitted a child along a 1.7 m line and a 0.2 m
+    capsule and wrote them as uncertain fits); the tube's radius is measured; the test body's scan lies far
+    below the threshold (above)."""
+    from arteq.fit.demo import synthetic_scan
+
+    pts = _tube(kind, np.random.default_rng(3))
+    s = synthetic_scan(body, "test_id", 3, 5000, offset=0.0, rotate=False)
+    near = s["vertices"] - s["vertices"].mean(0) + pts.mean(0)  # a body where the tube is, as a fit would be
+    q = _fit(pts, near, s["betas"], body.part_labels.numpy())
+    assert q["tube_frac"] >= 0.85 and "tube" in q["flags"] and verdict(q["flags"]) == "not_single_body", q
+    radius = {"line": 0.0, "pole": 0.05, "capsule": 0.2, "cylinder": 0.15}[kind]
+    assert abs(q["tube_radius_m"] - radius) < 0.01, q
+    assert f"lie on a tube of radius {radius:.2f} m" in describe_flags(q, ["tube"])
 
 
 @pytest.mark.parametrize(
@@ -87,8 +121,8 @@ def test_verdict_on_calibration_values(values, expected):
     assert verdict(_flags(inl, cov, parts, beta, ext)) == expected
 
 
-def test_shipped_model_refuses_a_sphere_and_two_people(body, tmp_path):
-    """The shipped network through ``arteq-fit``: a sphere and two people side by side get
+def test_shipped_model_refuses_a_sphere_two_people_and_a_capsule(body, tmp_path):
+    """The shipped network through ``arteq-fit``: a sphere, two people side by side and a capsule get
     ``not_single_body`` with the reason, nothing written for them; exit code 1."""
     from arteq.fit.cli import main as cli_main
     from arteq.fit.demo import synthetic_scan
@@ -103,14 +137,15 @@ def test_shipped_model_refuses_a_sphere_and_two_people(body, tmp_path):
     b = synthetic_scan(body, "test_id", 12, 2500, offset=0.0, rotate=False)
     second = b["points"] - b["vertices"].mean(0) + a["vertices"].mean(0) + [0.8, 0, 0]
     pair = np.concatenate([a["points"], second])
-    for name, pts in (("sphere", sph), ("pair", pair)):
+    capsule = _tube("capsule", rng)
+    for name, pts in (("sphere", sph), ("pair", pair), ("capsule", capsule)):
         (tmp_path / f"{name}.ply").write_bytes(trimesh.PointCloud(pts).export(file_type="ply"))
     out = tmp_path / "fits"
-    rc = cli_main([str(tmp_path / "sphere.ply"), str(tmp_path / "pair.ply"), "--out", str(out),
-                   "--device", "cpu", "--no-anny", "--no-preview"])  # fmt: skip
+    rc = cli_main([str(tmp_path / f"{n}.ply") for n in ("sphere", "pair", "capsule")]
+                  + ["--out", str(out), "--device", "cpu", "--no-anny", "--no-preview"])  # fmt: skip
     rows = {r["name"]: r for r in json.loads((out / "summary.json").read_text())["inputs"]}
     assert rc == 1
-    for name in ("sphere", "pair"):
+    for name in ("sphere", "pair", "capsule"):
         assert rows[name]["status"] == "not_single_body", rows[name]
         assert ": not a single body (" in rows[name]["message"]
         assert list(out.glob(f"{name}.*")) == []

@@ -29,6 +29,12 @@ Values (``fit_quality``) and the reason codes they set (thresholds: :class:`Qual
   refuse it (a sphere of radius 0.3 m fitted by ``anny_scan``: 37 % inliers, like a badly fitted
   acrobatic body). Bodies measured 0.01-0.45 (the 42 scans of the user-scan suite, a child's backbend
   highest), spheres 1.0.
+- ``tube_frac``: the share of the points within ``tube_tol_cm`` of the tube (a capsule) around the
+  cloud's long axis (:func:`tube_fit`); refused at ``max_tube_frac`` or more (``tube``: a line, a pole, a
+  cylinder or a capsule, which the body could otherwise wrap itself around and be written as uncertain).
+  Bodies measured 0.10-0.71 (full scans and single views of every age, pencil poses included), lines,
+  poles, cylinders and capsules 1.00 (experiments/fitting/tube_check.md). One camera's view of a pole is
+  not caught.
 
 Clutter removal (:mod:`arteq.fit.clean`) adds the refusing flag ``second_body`` when the scan holds a
 second body-sized cluster apart from the fitted one (two people). The crossed-limb step
@@ -43,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Reason codes that refuse a fit (the scan is not one body); every other code makes it uncertain.
-REFUSE_FLAGS = ("no_body_surface", "unexplained_points", "wrong_size", "second_body", "sphere")
+REFUSE_FLAGS = ("no_body_surface", "unexplained_points", "wrong_size", "second_body", "sphere", "tube")
 
 
 @dataclass
@@ -68,6 +74,11 @@ class QualityThresholds:
     #: refused: this share of the points or more on one sphere (within ``sphere_tol_cm`` of it)
     max_sphere_frac: float = 0.8
     sphere_tol_cm: float = 3.0
+    #: refused: this share of the points or more on one tube around the cloud's long axis (within
+    #: ``tube_tol_cm``; a line, a pole, a cylinder, a capsule). Bodies 0.10-0.71 (a 3-year-old), lines,
+    #: poles, cylinders and capsules 1.00 (experiments/fitting/tube_check.md)
+    max_tube_frac: float = 0.85
+    tube_tol_cm: float = 3.0
     #: a noisy or sparse scan (:mod:`arteq.fit.conditions`): above ``noise_from_mm`` of noise, the inlier
     #: distance at least ``noise_inlier`` times the noise and the inlier RMS limit at least ``noise_rmse``
     #: times it; the covering radius at least ``spacing_cover`` times its sparse regions' spacing
@@ -131,6 +142,7 @@ def fit_quality(
     extent = float((q[1] - q[0]).max())
     max_beta = float(np.abs(betas).max()) if len(betas) else 0.0
     sphere_frac, sphere_r = sphere_fit(points, th.sphere_tol_cm / 100)
+    tube_frac, tube_r = tube_fit(points, th.tube_tol_cm / 100)
     values = {
         "inlier_frac": inlier_frac,
         "rmse_in_cm": rmse,
@@ -145,6 +157,8 @@ def fit_quality(
         "max_rmse_cm": max_rmse_cm,
         "sphere_frac": sphere_frac,
         "sphere_radius_m": sphere_r,
+        "tube_frac": tube_frac,
+        "tube_radius_m": tube_r,
     }
     values["flags"] = quality_flags(values, th)
     return values
@@ -162,6 +176,34 @@ def sphere_fit(points: np.ndarray, tol_m: float = 0.03) -> tuple[float, float]:
     r = float(np.sqrt(max(sol[3] + sol[:3] @ sol[:3], 0.0)))
     d = np.abs(np.linalg.norm(p - sol[:3], axis=1) - r)
     return float((d < tol_m).mean()), r
+
+
+def tube_fit(points: np.ndarray, tol_m: float = 0.03) -> tuple[float, float]:
+    """``(share of the points within tol_m of it, radius m)`` of the best tube around the principal axis of
+    ``points [N, 3]``, a capsule (all points at one distance from a segment) or a cylinder with flat ends:
+    a line, a pole, a cylinder or a capsule puts nearly all its points on one; a body's arms, legs and head
+    lie at other distances from its long axis than its trunk. The capsule's segment spans the points'
+    0.5-99.5 % range along the axis shortened at both ends by its radius, the cylinder that range; radii:
+    the median distance of the points to the segment, of the middle 80 % of the points to the axis."""
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) < 4:
+        return 0.0, 0.0
+    p = p - p.mean(0)
+    axis = np.linalg.svd(p[:: max(1, len(p) // 5000)], full_matrices=False)[2][0]
+    t = p @ axis
+    rho = np.linalg.norm(p - t[:, None] * axis, axis=1)
+    lo, hi = np.percentile(t, [0.5, 99.5])
+    r0 = float(np.median(rho))
+    a, b = min(lo + r0, 0.5 * (lo + hi)), max(hi - r0, 0.5 * (lo + hi))
+    d = np.linalg.norm(p - np.clip(t, a, b)[:, None] * axis, axis=1)
+    r_capsule = float(np.median(d))
+    capsule = float((np.abs(d - r_capsule) < tol_m).mean())
+    middle = (t > lo + 0.1 * (hi - lo)) & (t < hi - 0.1 * (hi - lo))
+    r_cyl = float(np.median(rho[middle])) if middle.any() else r0
+    side = np.abs(rho - r_cyl) + np.maximum(np.maximum(lo - t, t - hi), 0.0)
+    ends = np.minimum(np.abs(t - lo), np.abs(t - hi)) + np.maximum(rho - r_cyl, 0.0)
+    cylinder = float((np.minimum(side, ends) < tol_m).mean())
+    return (capsule, r_capsule) if capsule >= cylinder else (cylinder, r_cyl)
 
 
 def quality_flags(q: dict, thresholds: QualityThresholds | None = None) -> list[str]:
@@ -187,6 +229,8 @@ def quality_flags(q: dict, thresholds: QualityThresholds | None = None) -> list[
         flags.append("high_residual")
     if q.get("sphere_frac", 0.0) >= th.max_sphere_frac:  # records written before the value: no sphere
         flags.append("sphere")
+    elif q.get("tube_frac", 0.0) >= th.max_tube_frac:  # a sphere lies on a tube too: one reason suffices
+        flags.append("tube")
     return flags
 
 
@@ -221,6 +265,11 @@ def describe_flags(q: dict, flags: list[str] | None = None) -> str:
         "sphere": (
             f"{q.get('sphere_frac', 0.0):.0%} of the points lie on a sphere of radius "
             f"{q.get('sphere_radius_m', 0.0):.2f} m"
+        ),
+        "tube": (
+            f"{q.get('tube_frac', 0.0):.0%} of the points lie on a tube of radius "
+            f"{q.get('tube_radius_m', 0.0):.2f} m around one axis (a pole, a cylinder: a body's limbs and "
+            "head lie off it)"
         ),
         "second_body": (
             f"a second body-sized object beside it ({q.get('second_body_points', 0)} points, "
