@@ -7,8 +7,10 @@ import pytest
 import torch
 
 from arteq.fit.crossing import (
+    ALL_LIMBS,
     CHAINS,
     PAIRS,
+    SWAPS,
     CrossingConfig,
     pairs_to_try,
     segment_gap,
@@ -84,6 +86,29 @@ def test_chain_swap_aims_every_segment_at_the_other_sides_end(body, scene, chain
     # not a pair swap's start: the second segments are aimed again
     single = swap_start(s["pose"], fit["global_rotmats"], fit["joints"], CHAINS[chain][0])
     assert not np.allclose(single, swap_start(s["pose"], fit["global_rotmats"], fit["joints"], chain))
+
+
+def test_all_limbs_swap_aims_every_segment_and_keeps_the_trunk(body, scene):
+    """All four limbs at once (:data:`ALL_LIMBS`): every segment of both chains points at where the other
+    side's segment ended in the fit; the trunk and head keep their global rotations; tried only where both
+    chains are and the config asks for it."""
+    s, fit = scene
+    new = _posed(
+        body, swap_start(s["pose"], fit["global_rotmats"], fit["joints"], ALL_LIMBS), s["betas"], s["transl"]
+    )
+    for pair in SWAPS[ALL_LIMBS]:
+        lj, rj, le, re = PAIRS[pair]
+        for j, end, other in ((lj, le, re), (rj, re, le)):
+            got = new["joints"][end] - new["joints"][j]
+            want = fit["joints"][other] - new["joints"][j]
+            assert got @ want / np.linalg.norm(got) / np.linalg.norm(want) > 1 - 1e-6, pair
+    roots = [PAIRS["upper_arms"][0], PAIRS["upper_arms"][1], PAIRS["thighs"][0], PAIRS["thighs"][1]]
+    trunk = [k for k in range(22) if not _descends(k, roots)]
+    np.testing.assert_allclose(new["global_rotmats"][trunk], fit["global_rotmats"][trunk], atol=1e-5)
+    assert ALL_LIMBS not in pairs_to_try(fit["joints"], doubtful=True)
+    on = CrossingConfig(all_limbs=True)
+    assert pairs_to_try(fit["joints"], doubtful=True, config=on) == [*PAIRS, *CHAINS, ALL_LIMBS]
+    assert ALL_LIMBS not in pairs_to_try(fit["joints"], doubtful=False, config=on)
 
 
 def _descends(k, roots):

@@ -47,6 +47,10 @@ PAIRS: dict[str, tuple[int, int, int, int]] = {
 #: segment ended in the fit (a cartwheel's arms fitted crossed overhead need both upper arms and forearms
 #: swapped: the upper arms alone leave the forearms pointing back across; experiments/fitting/crossing.md)
 CHAINS: dict[str, tuple[str, ...]] = {"arms": ("upper_arms", "forearms"), "legs": ("thighs", "shins")}
+#: every limb swapped at once, tried where both chains are: a body read with all four limbs on the wrong
+#: side (a bow fitted with the left arm and leg where the right ones are) is not undone by one chain
+ALL_LIMBS = "limbs"
+SWAPS: dict[str, tuple[str, ...]] = {**CHAINS, ALL_LIMBS: CHAINS["arms"] + CHAINS["legs"]}
 
 
 @dataclass
@@ -73,6 +77,10 @@ class CrossingConfig:
     chains: bool = True
     chain_near_m: float = 0.3
     chain_raised_m: float = 0.1
+    #: also try all four limbs swapped at once (:data:`ALL_LIMBS`) where both chains are tried (off: on the
+    #: lost acrobatic fits it starts nearer the truth, 39 -> 20 cm V2V on a bow, but refines to a worse
+    #: surface score than the fit, so it is never kept; experiments/fitting/lost_fits.md)
+    all_limbs: bool = False
 
     @classmethod
     def from_strings(cls, items: list[str] | tuple[str, ...], **base) -> CrossingConfig:
@@ -89,7 +97,7 @@ def swap_start(local: np.ndarray, global_rot: np.ndarray, joints: np.ndarray, pa
     other side's segment ended in the fit."""
     from arteq.fit.refine import branch_parts
 
-    pairs = CHAINS.get(pair, (pair,))
+    pairs = SWAPS.get(pair, (pair,))
     g = np.array(global_rot, dtype=np.float64, copy=True)
     pos = np.array(joints, dtype=np.float64, copy=True)
     for p in pairs:
@@ -142,6 +150,8 @@ def pairs_to_try(joints: np.ndarray, doubtful: bool, config: CrossingConfig | No
         pairs += [
             c for c, parts in CHAINS.items() if all(p in pairs for p in parts) or _near_raised(joints, c, cfg)
         ]
+        if cfg.all_limbs and all(c in pairs for c in CHAINS):
+            pairs.append(ALL_LIMBS)
     return pairs
 
 
