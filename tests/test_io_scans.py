@@ -107,6 +107,14 @@ def test_units_check_suggests_the_flag():
     assert 1.2 < check_body_size(body_mm * 0.001, "s.ply", "mm") < 2.5
     with pytest.raises(ScanError, match="pass --units m"):
         check_body_size(body_mm * 0.001 * 0.01, "s.ply", "cm")  # metres given as cm: 100x too small
+    # inches and feet (US scanners' and CAD exports' units): named in the hint, accepted with the flag
+    for unit, scale in (("in", 0.0254), ("ft", 0.3048)):
+        with pytest.raises(ScanError, match=rf"the cloud is [\d.]+ m across.*pass --units {unit}\b"):
+            check_body_size(body_mm * 0.001 / scale, "s.ply", "m")
+        assert 1.2 < check_body_size(body_mm * 0.001, "s.ply", unit) < 2.5
+    # 80 units across: inches for an adult, centimetres for a child; both named, the nearer to 1.7 m first
+    with pytest.raises(ScanError, match=r"pass --units in \(in cm: --units cm\)$"):
+        check_body_size(body_mm * 0.001 / 0.0254, "s.ply", "m")
 
 
 def test_expand_inputs_folders_globs_and_missing(tmp_path, cloud):

@@ -13,6 +13,8 @@ import sys
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from arteq.io.scans import UNITS
+
     ap = argparse.ArgumentParser(
         prog="arteq-fit",
         description="Fit the body model to point clouds or meshes "
@@ -30,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--refine", action=argparse.BooleanOptionalAction, default=True,
                     help="refine the network's fit against the scan (default: on)")  # fmt: skip
     ap.add_argument("--points", type=int, default=5000, help="input resampled to this many points (5000)")
-    ap.add_argument("--units", choices=("m", "cm", "mm"), default="m", help="units of the input files (m)")
+    ap.add_argument("--units", choices=tuple(UNITS), default="m", help="units of the input files (m)")
     ap.add_argument("--key", default=None, help="array name in .npz inputs (default: points)")
     ap.add_argument("--device", default="auto", help="cpu, cuda or auto (default)")
     ap.add_argument("--batch-size", type=int, default=4, help="scans fitted together (4)")

@@ -25,7 +25,8 @@ TEXT_SUFFIXES = (".xyz", ".txt", ".pts", ".csv")
 ARRAY_SUFFIXES = (".npy", ".npz")
 SUFFIXES = MESH_SUFFIXES + TEXT_SUFFIXES + ARRAY_SUFFIXES
 #: Metres per unit.
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
+_UNIT_WORDS = {"in": "inches", "ft": "feet"}
 #: Fewest usable points a scan may have.
 MIN_POINTS = 200
 
@@ -214,11 +215,17 @@ def check_body_size(
     if limits_m[0] <= ext <= limits_m[1]:
         return ext
     in_units = ext / UNITS[units]
-    hint = ""
-    for name, scale in UNITS.items():
-        if name != units and 0.8 <= in_units * scale <= 2.5:
-            hint = f"; if the file is in {name}, pass --units {name}"
-            break
+    fits = sorted(
+        (abs(np.log(in_units * scale / 1.7)), name)
+        for name, scale in UNITS.items()
+        if name != units and 0.8 <= in_units * scale <= 2.5
+    )  # the units that make it body-sized, the nearest to 1.7 m first (80 in or 80 cm: a child either way)
+    hint = "".join(
+        f"; if the file is in {_UNIT_WORDS.get(name, name)}, pass --units {name}"
+        if k == 0
+        else f" (in {_UNIT_WORDS.get(name, name)}: --units {name})"
+        for k, (_, name) in enumerate(fits)
+    )
     raise ScanError(
         f"{path}: the cloud is {in_units:.4g} {units} across, a human body is about 1.7 m "
         f"(expected {limits_m[0]:g}-{limits_m[1]:g} m with --units {units}){hint}"
