@@ -25,6 +25,10 @@ def test_reads_every_cloud_format(tmp_path, cloud):
             "# x y z r g b\n" + "\n".join(f"{a},{b},{c},1,2,3" for a, b, c in cloud)
         ),
         "e.ply": lambda p: p.write_bytes(trimesh.PointCloud(cloud).export(file_type="ply")),
+        # a Leica-style .pts: the point count on the first line, then x y z intensity r g b
+        "f.pts": lambda p: p.write_text(
+            f"{len(cloud)}\n" + "\n".join(f"{a} {b} {c} -1200 80 90 100" for a, b, c in cloud)
+        ),
     }
     for name, write in files.items():
         write(tmp_path / name)
@@ -65,7 +69,8 @@ def test_npz_key(tmp_path, cloud):
         ("garbage.ply", b"this is not a ply file\n" * 20, r"garbage\.ply: not a readable PLY file"),
         ("bad.npy", b"\x93NUMPY garbage", r"bad\.npy: not a readable \.npy file"),
         ("words.xyz", b"1 2 3\n4 5 x\n", r"words\.xyz: line 2 is not numbers"),
-        ("short.xyz", b"1 2\n", r"short\.xyz: line 1 has 2 values"),
+        ("short.xyz", b"1 2 3\n4 5\n", r"short\.xyz: line 2 has 2 values"),
+        ("flat.xyz", b"1 2\n3 4\n", r"flat\.xyz: no points \(no 'x y z' lines\)"),
         ("scan.abc", b"1 2 3\n", r"scan\.abc: unknown file type '\.abc'"),
     ],
 )

@@ -102,6 +102,8 @@ def _read_text(path: Path) -> np.ndarray:
                 continue
             fields = line.replace(",", " ").replace(";", " ").split()
             if len(fields) < 3:
+                if not rows:  # a header line: a .pts file's point count, a column name
+                    continue
                 raise ScanError(f"{path}: line {lineno} has {len(fields)} values, expected x y z")
             try:
                 rows.append([float(f) for f in fields[:3]])
