@@ -24,6 +24,25 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from arteq.fit.quality import sphere_fit, tube_fit  # noqa: E402
 
 
+def arc_fit(points: np.ndarray, tol_m: float = 0.03) -> tuple[float, float]:
+    """Like :func:`arteq.fit.quality.tube_fit`'s cylinder, but its axis placed by a circle fitted to the points
+    across the long axis (algebraic, 2D), so that one camera's view of a pole (a half shell, whose centroid is
+    off the axis) lies on it too. Probed for ``--arc``, not used by the check (experiments/fitting/tube_check.md)."""
+    p = np.asarray(points, dtype=np.float64)
+    p = p - p.mean(0)
+    axis = np.linalg.svd(p[:: max(1, len(p) // 5000)], full_matrices=False)[2][0]
+    t = p @ axis
+    q = p - t[:, None] * axis
+    xy = q @ np.linalg.svd(q[:: max(1, len(q) // 5000)], full_matrices=False)[2][:2].T
+    sol = np.linalg.lstsq(np.c_[2 * xy, np.ones(len(xy))], (xy**2).sum(1), rcond=None)[0]
+    r = float(np.sqrt(max(sol[2] + sol[:2] @ sol[:2], 0.0)))
+    rho = np.linalg.norm(xy - sol[:2], axis=1)
+    lo, hi = np.percentile(t, [0.5, 99.5])
+    side = np.abs(rho - r) + np.maximum(np.maximum(lo - t, t - hi), 0.0)
+    ends = np.minimum(np.abs(t - lo), np.abs(t - hi)) + np.maximum(rho - r, 0.0)
+    return float((np.minimum(side, ends) < tol_m).mean()), r
+
+
 def non_bodies(rng: np.random.Generator) -> dict[str, np.ndarray]:
     import trimesh
 
@@ -48,6 +67,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--views", type=int, default=32)
+    ap.add_argument("--arc", action="store_true", help="also the arc fit (arc_fit) of bodies and half objects")
     ap.add_argument("--fit", action="store_true", help="also fit the non-bodies with arteq-fit's defaults")
     ap.add_argument("--max-tube", type=float, default=None, help="--fit with this max_tube_frac (1.01: off)")
     a = ap.parse_args(argv)
@@ -59,6 +79,8 @@ def main(argv: list[str] | None = None) -> None:
     def add(group: str, name: str, pts: np.ndarray) -> None:
         f, r = tube_fit(pts)
         groups.setdefault(group, []).append((name, f, r))
+        if a.arc:
+            groups.setdefault(f"arc: {group}", []).append((name, *arc_fit(pts)))
 
     people = People()
     pencil = {"left_shoulder": (0, 0, 170), "right_shoulder": (0, 0, -170)}
@@ -89,6 +111,8 @@ def main(argv: list[str] | None = None) -> None:
                 add(f"single views: {split.removeprefix('test_view_')}", str(k), pts.numpy())
     for name, pts in non_bodies(rng).items():
         add("non-bodies", name, pts)
+        if a.arc:  # one camera's view of it: the half facing +x
+            add("non-bodies, half (one side)", name, pts[pts[:, 0] > np.median(pts[:, 0])])
         groups.setdefault("non-bodies (sphere test)", []).append((name, *sphere_fit(pts)))
     print("| group | scans | tube share min / median / max | highest |")
     print("|---|---:|---|---|")
@@ -96,8 +120,9 @@ def main(argv: list[str] | None = None) -> None:
         f = np.array([x[1] for x in rows])
         top = max(rows, key=lambda x: x[1])
         print(f"| {g} | {len(rows)} | {f.min():.2f} / {np.median(f):.2f} / {f.max():.2f} | {top[0]} |")
-    for name, f, r in groups["non-bodies"]:
-        print(f"  {name}: tube {f:.2f} (r {r:.2f} m)")
+    for g in ("non-bodies", "arc: non-bodies", "arc: non-bodies, half (one side)"):
+        for name, f, r in groups.get(g, []):
+            print(f"  {g}: {name}: {f:.2f} (r {r:.2f} m)")
     if a.fit:
         from arteq.fit import Fitter
         from arteq.fit.quality import QualityThresholds
