@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> None:
         f = np.array([x[1] for x in rows])
         top = max(rows, key=lambda x: x[1])
         print(f"| {g} | {len(rows)} | {f.min():.2f} / {np.median(f):.2f} / {f.max():.2f} | {top[0]} |")
-    for g in ("non-bodies", "arc: non-bodies", "arc: non-bodies, half (one side)"):
+    for g in ("non-bodies", "arc: non-bodies", "non-bodies, half (one side)", "arc: non-bodies, half (one side)"):
         for name, f, r in groups.get(g, []):
             print(f"  {g}: {name}: {f:.2f} (r {r:.2f} m)")
     if a.fit:
