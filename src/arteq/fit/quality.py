@@ -33,8 +33,8 @@ Values (``fit_quality``) and the reason codes they set (thresholds: :class:`Qual
   cloud's long axis (:func:`tube_fit`); refused at ``max_tube_frac`` or more (``tube``: a line, a pole, a
   cylinder or a capsule, which the body could otherwise wrap itself around and be written as uncertain).
   Bodies measured 0.10-0.71 (full scans and single views of every age, pencil poses included), lines,
-  poles, cylinders and capsules 1.00 (experiments/fitting/tube_check.md). One camera's view of a pole is
-  not caught.
+  poles, cylinders and capsules 1.00 (experiments/fitting/tube_check.md). One camera's view of a cylinder
+  or capsule thicker than a pole is not caught.
 
 Clutter removal (:mod:`arteq.fit.clean`) adds the refusing flag ``second_body`` when the scan holds a
 second body-sized cluster apart from the fitted one (two people). The crossed-limb step
