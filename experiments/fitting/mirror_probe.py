@@ -35,9 +35,12 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from arteq.body.skeleton import JOINT_NAMES, NUM_JOINTS, global_to_local  # noqa: E402
+from arteq.models.sides import LEFT_PARTS, RIGHT_PARTS  # noqa: E402
 
-MIRROR = [JOINT_NAMES.index(n.replace("left_", "@").replace("right_", "left_").replace("@", "right_"))
-          for n in JOINT_NAMES]  # fmt: skip
+#: each part's mirror part (left <-> right; the trunk and head their own)
+MIRROR = list(range(len(JOINT_NAMES)))
+for _l, _r in zip(LEFT_PARTS, RIGHT_PARTS, strict=True):
+    MIRROR[_l], MIRROR[_r] = _r, _l
 RY_PI = torch.diag(torch.tensor([-1.0, 1.0, -1.0], dtype=torch.float64))
 
 

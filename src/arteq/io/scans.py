@@ -222,12 +222,11 @@ def check_body_size(
         for name, scale in UNITS.items()
         if name != units and 0.8 <= in_units * scale <= 2.5
     )  # the units that make it body-sized, the nearest to 1.7 m first (80 in or 80 cm: a child either way)
-    hint = "".join(
-        f"; if the file is in {_UNIT_WORDS.get(name, name)}, pass --units {name}"
-        if k == 0
-        else f" (in {_UNIT_WORDS.get(name, name)}: --units {name})"
-        for k, (_, name) in enumerate(fits)
-    )
+    hint = ""
+    if fits:
+        first, *others = [name for _, name in fits]
+        hint = f"; if the file is in {_UNIT_WORDS.get(first, first)}, pass --units {first}"
+        hint += "".join(f" (in {_UNIT_WORDS.get(n, n)}: --units {n})" for n in others)
     raise ScanError(
         f"{path}: the cloud is {in_units:.4g} {units} across, a human body is about 1.7 m "
         f"(expected {limits_m[0]:g}-{limits_m[1]:g} m with --units {units}){hint}"
