@@ -187,7 +187,9 @@ def main() -> None:
              "```", f"OMP_NUM_THREADS={a.threads} python experiments/fitting/scan_defects.py --ckpt {a.ckpt} "
              f"--bodies {a.bodies} --seed {a.seed} --threads {a.threads}"
              + (f" --out {a.out}" if a.out else "") + (f" --json {a.json}" if a.json else "")
-             + (f" --set {' '.join(a.set)}" if a.set else ""), "```\n",
+             + (f" --set {' '.join(a.set)}" if a.set else "")
+             + (f" --defects {a.defects}" if a.defects != ",".join(DEFECTS) else "")
+             + (f" --net-draws {a.net_draws}" if a.net_draws is not None else ""), "```\n",
              f"{a.bodies} bodies ({kids} children 3-12 y, {a.bodies - kids} adults 18-70 y), "
              f"{time.time() - t0:.0f} s in all; V2V usable at <= 3 cm.\n",
              "| defect | points | written (ok / uncertain) | refused | V2V mean / worst cm | usable | "

@@ -60,6 +60,7 @@ from arteq.data.dataset import (
     ShardSampler,
     TensorDictDataset,
 )
+from arteq.data.holes import HoleConfig
 from arteq.data.poses import (
     ATHLETIC_LIMITS_DEG,
     ContactRejectedPoses,
@@ -274,6 +275,8 @@ class BodyScanDataModule(L.LightningDataModule):
             SingleViewConfig` fields; ``prob``: share of training clouds that are single-view scans).
         view_splits: cached single-view test sets to build and test on, after ``test_splits``
             (:data:`arteq.results.VIEW_SPLITS`, named so or by view: ``front`` = ``test_view_front``).
+        holes: holes in the full-surface training clouds (:class:`arteq.data.holes.HoleConfig` fields;
+            ``prob``: share of those clouds with holes); the fixed sets have none.
     """
 
     def __init__(
@@ -309,6 +312,7 @@ class BodyScanDataModule(L.LightningDataModule):
         net: Mapping[str, Any] | None = None,
         single_view: Mapping[str, Any] | None = None,
         view_splits: list[str] | tuple[str, ...] | None = None,
+        holes: Mapping[str, Any] | None = None,
     ) -> None:
         super().__init__()
         if source not in ("synthetic", "amass"):
@@ -338,6 +342,7 @@ class BodyScanDataModule(L.LightningDataModule):
         named = {view_split(v) for v in view_splits}
         self.view_splits = tuple(v for v in VIEW_SPLITS if v in named)
         self.single_view = SingleViewConfig.from_mapping(to_plain(single_view))
+        self.holes = HoleConfig.from_mapping(to_plain(holes))
         if not 0.0 <= float(wide_poses) <= 1.0:
             raise ValueError(f"data.wide_poses is a probability in [0, 1], got {wide_poses}")
         self.wide_poses = float(wide_poses)
@@ -467,13 +472,14 @@ class BodyScanDataModule(L.LightningDataModule):
                 src, self.body, "test_view", int(size), seed=self.seed, augment=augment, config=config,
                 view=split[len("test_view_") :], **self.sampling,
             )  # fmt: skip
+        holes = self.holes if split == "train" else None  # the fixed sets stay complete surfaces
         if split == "train" and self.single_view.prob > 0:
             return SingleViewDataset(
                 src, self.body, split, int(size), seed=self.seed, augment=augment, config=self.single_view,
-                view="any", **self.sampling,
+                view="any", holes=holes, **self.sampling,
             )  # fmt: skip
         return BodyScanDataset(
-            src, self.body, split, int(size), seed=self.seed, augment=augment, **self.sampling
+            src, self.body, split, int(size), seed=self.seed, augment=augment, holes=holes, **self.sampling
         )
 
     # ------------------------------------------------------------------ fixed sets

@@ -25,6 +25,7 @@ import roma
 import torch
 from torch.utils.data import Dataset, Sampler
 
+from arteq.data.holes import OVERSAMPLE, HoleConfig, carve_holes
 from arteq.data.poses import PoseSource
 from arteq.data.shapes import SHAPE_META_KEYS, no_shape_meta
 from arteq.geometry.rotations import euler_to_rotmat, random_rotmat
@@ -75,6 +76,7 @@ class BodyScanDataset(Dataset):
             ``sample(num_betas, generator)``, e.g. :class:`arteq.data.shapes.StoredShapePrior`; None: the
             normal prior). If it also has ``draw(num_betas, generator) -> (betas, meta)``, every sample
             carries ``meta`` (:data:`META_KEYS`; for betas from the source: unknown, ``shape_index`` -1).
+        holes: holes in the full-surface clouds (:class:`arteq.data.holes.HoleConfig`; None: none).
     """
 
     def __init__(
@@ -91,6 +93,7 @@ class BodyScanDataset(Dataset):
         density_wavelength: float = 0.6,
         beta_scale: float = 1.0,
         shapes: object | None = None,
+        holes: HoleConfig | None = None,
     ) -> None:
         if augment not in AUGMENTS:
             raise ValueError(f"augment must be one of {AUGMENTS}, got {augment!r}")
@@ -105,6 +108,7 @@ class BodyScanDataset(Dataset):
         self.density_contrast, self.density_wavelength = density_contrast, density_wavelength
         self.beta_scale = beta_scale
         self.shapes = shapes
+        self.holes = holes if holes is not None and holes.prob > 0 else None
 
     def __len__(self) -> int:
         return self.size
@@ -196,8 +200,14 @@ class BodyScanDataset(Dataset):
         # density field anchored to the body's root frame: rotating the body does not move it
         centroids = (verts[faces].mean(1) - pelvis) @ grot[0]
         density = smooth_density_field(centroids, g, self.density_contrast, self.density_wavelength)
-        points, face_idx, bary = sample_surface(verts, faces, self.num_points, g, density, self.noise_std)
-        return points, interpolate_labels(self.body.lbs_weights, faces, face_idx, bary)
+        gh = seeded_generator(*key, "holes")  # its own stream: a cloud without holes is drawn as before
+        if self.holes is None or float(torch.rand((), generator=gh, dtype=torch.float64)) >= self.holes.prob:
+            points, face_idx, bary = sample_surface(verts, faces, self.num_points, g, density, self.noise_std)
+            return points, interpolate_labels(self.body.lbs_weights, faces, face_idx, bary)
+        n = math.ceil(self.num_points * OVERSAMPLE)
+        points, face_idx, bary = sample_surface(verts, faces, n, g, density, self.noise_std)
+        kept, _ = carve_holes(points, self.num_points, self.holes, gh)
+        return points[kept], interpolate_labels(self.body.lbs_weights, faces, face_idx[kept], bary[kept])
 
 
 class TensorDictDataset(Dataset):
