@@ -72,6 +72,23 @@ def test_a_clean_body_keeps_its_points(scans):
         assert res.keep.mean() >= 0.997
 
 
+def test_a_lower_leg_cut_off_by_a_hole_stays_with_the_body(scans):
+    """A 13 cm hole across a shin leaves the lower leg 20-26 cm from the rest: part of the body, kept (the
+    0.2 m of ``keep_near_m`` before 2026-12-06 removed it from 5 of these 6 scans; experiments/fitting/
+    holes.md); a box 0.6 m beside the body is still removed."""
+    cut_before = 0
+    for i, s in enumerate(scans):
+        for shin in (4, 5):  # the parts of the left and right knee joints
+            centre = s["points"][s["labels"] == shin].mean(0)
+            far = np.linalg.norm(s["points"] - centre, axis=1) > 0.13
+            pts, lab = add_clutter(s["points"][far], s["vertices"], s["faces"], _up(s), ("box",), seed=i)
+            res = clean_scan(pts)
+            assert res.keep[lab == 0].all(), (i, shin)
+            assert (~res.keep[lab == CLUTTER_KINDS["box"]]).mean() >= 0.95
+            cut_before += int(clean_scan(pts[lab == 0], CleanConfig(keep_near_m=0.2)).counts["cluster"] > 0)
+    assert cut_before >= 4  # the scans do hold lower legs beyond the old 0.2 m
+
+
 def test_two_people_are_flagged_not_cleaned_away(anny22, scans):
     s = scans[0]
     t = synthetic_scan(anny22, "test_id", index=9, seed=22, offset=0.0, rotate=False)

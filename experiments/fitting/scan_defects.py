@@ -141,6 +141,7 @@ def main() -> None:
     ap.add_argument("--out", default=None, help="the Markdown tables")
     ap.add_argument("--json", default=None, help="every fit's record")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
+    ap.add_argument("--clean", nargs="*", default=[], metavar="KEY=VALUE", help="CleanConfig fields")
     ap.add_argument("--net-draws", type=int, default=None, help="Fitter(net_draws=...) (default: the Fitter's)")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
@@ -152,8 +153,10 @@ def main() -> None:
     faces = people.faces
     from arteq.fit.refine import RefineConfig
 
+    from arteq.fit.clean import CleanConfig
+
     fitter = Fitter(ckpt=a.ckpt, device="cpu", anny=False, refine_config=RefineConfig.from_strings(a.set),
-                    net_draws=a.net_draws)
+                    net_draws=a.net_draws, clean_config=CleanConfig.from_strings(a.clean))
     kids = a.bodies // 2
     phens = people.sample(kids, (3.0, 12.0), 9100 + a.seed)
     phens += people.sample(a.bodies - kids, (18.0, 70.0), 9200 + a.seed)
@@ -189,7 +192,8 @@ def main() -> None:
              + (f" --out {a.out}" if a.out else "") + (f" --json {a.json}" if a.json else "")
              + (f" --set {' '.join(a.set)}" if a.set else "")
              + (f" --defects {a.defects}" if a.defects != ",".join(DEFECTS) else "")
-             + (f" --net-draws {a.net_draws}" if a.net_draws is not None else ""), "```\n",
+             + (f" --net-draws {a.net_draws}" if a.net_draws is not None else "")
+             + (f" --clean {' '.join(a.clean)}" if a.clean else ""), "```\n",
              f"{a.bodies} bodies ({kids} children 3-12 y, {a.bodies - kids} adults 18-70 y), "
              f"{time.time() - t0:.0f} s in all; V2V usable at <= 3 cm.\n",
              "| defect | points | written (ok / uncertain) | refused | V2V mean / worst cm | usable | "

@@ -538,9 +538,12 @@ def run_people(a) -> None:
 
     cross = not a.no_crossing and (CrossingConfig.from_strings(a.crossing) if a.crossing else True)
 
+    from arteq.fit.clean import CleanConfig
+
     cfg = RefineConfig.from_strings(a.set)
     kw = dict(
         ckpt=a.ckpt, device="cpu", points=5000, crossing=cross, refine_config=cfg, shape_betas=a.shape_betas,
+        clean_config=CleanConfig.from_strings(a.clean),
         net_draws=a.net_draws, retries=a.retries, retry_above_cm=a.retry_above,
         **({"second_start": False} if a.no_second_start else {}),
     )
@@ -677,6 +680,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="people: RefineConfig fields")
     ap.add_argument("--crossing", nargs="*", default=[], metavar="KEY=VALUE", help="people: CrossingConfig fields")
+    ap.add_argument("--clean", nargs="*", default=[], metavar="KEY=VALUE", help="people: CleanConfig fields")
     ap.add_argument("--shape-betas", type=int, default=None, help="people: Fitter(shape_betas=...)")
     ap.add_argument("--net-draws", type=int, default=None, help="people: Fitter(net_draws=...)")
     ap.add_argument("--retries", type=int, default=None, help="people: Fitter(retries=...)")

@@ -34,7 +34,8 @@ standard means (metres, any orientation: nothing assumes an up axis):
 3. **separate clusters** (``cluster``): connected components of the points within ``cluster_radius`` of
    each other (``cluster_factor`` x the median 4-neighbour spacing, clipped to ``cluster_radius_m``); the
    largest is the body. Other components are removed unless they come within ``keep_near_m`` of it (a
-   hand or limb sampled sparsely, or cut off by a hole in the scan). A second component that is itself
+   hand or limb sampled sparsely, or cut off by a hole in the scan: 30 cm, so that a 10-13 cm hole across a
+   shin leaves the lower leg with the body). A second component that is itself
    body-sized (at least ``second_body_frac`` of the largest's points and ``second_body_extent_m``
    across) is *not* clutter: the scan is flagged ``second_body`` (two people, or a person next to a
    large object), which the fit turns into the status ``not_single_body`` unless the check is off.
@@ -45,9 +46,9 @@ standard means (metres, any orientation: nothing assumes an up axis):
    ``occlusion_jump_m``, and so on from those, are the body. A scan without its camera's position whose
    largest component is one camera's view (``one_sided_views``; :func:`arteq.fit.partial.one_sidedness`)
    is grown the same way from the estimated camera direction (a far camera: the image is the plane across
-   it); there body-sized pieces within ``keep_near_m`` are joined too (a torso and the legs cut from it),
-   and the fit's check refuses two people fitted as one. On held-out single views given as bare points (32 per
-   view) the cluster step had removed body parts from 24 side, 8 front, 4 back and 30 top-down scans
+   it); there body-sized pieces within ``one_sided_never_m`` are joined too (a torso and the legs cut from
+   it), and the fit's check refuses two people fitted as one. On held-out single views given as bare
+   points (32 per view) the cluster step had removed body parts from 24 side, 8 front, 4 back and 30 top-down scans
    (hands, lower legs, whole legs) and split 5 of the 128 bodies in two; with the rule 274 of 7625 side-view
    points are still removed (experiments/single_view/readings/clusters_probe.md); full surfaces are not
    one-sided and are cleaned as before.
@@ -95,7 +96,11 @@ class CleanConfig:
     clusters: bool = True
     cluster_factor: float = 4.0
     cluster_radius_m: tuple[float, float] = (0.02, 0.10)
-    keep_near_m: float = 0.2
+    #: components nearer the body are kept (0.2 before 2026-12-06: a 10 cm hole across a shin left the
+    #: lower leg 20-22 cm away and it was removed; experiments/fitting/holes.md)
+    keep_near_m: float = 0.3
+    #: one camera's view (:func:`_one_sided_parts`): body-sized components farther are never joined
+    one_sided_never_m: float = 0.2
     second_body_frac: float = 0.25
     second_body_extent_m: float = 0.8
     occlusion_gap_m: float = 0.25
@@ -107,6 +112,13 @@ class CleanConfig:
     one_sided_views: bool = True
     max_points: int = 30000
     seed: int = 0
+
+    @classmethod
+    def from_strings(cls, items: list[str] | tuple[str, ...], **base) -> CleanConfig:
+        """A config from ``KEY=VALUE`` strings over ``base`` (:func:`arteq.config.dataclass_from_strings`)."""
+        from arteq.config import dataclass_from_strings
+
+        return dataclass_from_strings(cls, items, "clean", **base)
 
 
 @dataclass
@@ -402,15 +414,15 @@ def _one_sided_parts(
     (:func:`arteq.fit.partial.one_sidedness` above :data:`arteq.fit.partial.PARTIAL_SCORE`), ``body``
     grown as :func:`_occluded_parts` does from the estimated camera direction: a hand beyond an occlusion
     edge, or the legs below a torso they are cut from, are the body's, not clutter or a second person.
-    Body-sized components beyond ``keep_near_m`` are never joined (a second person beside the body; one
-    nearer is joined and left to the fit's check, which refuses two people fitted as one). A full surface
-    is left as it is."""
+    Body-sized components beyond ``one_sided_never_m`` are never joined (a second person beside the body;
+    one nearer is joined and left to the fit's check, which refuses two people fitted as one). A full
+    surface is left as it is."""
     from arteq.fit.partial import PARTIAL_SCORE, one_sidedness
 
     gaps = _gaps(P, comp, sizes, main)
     big = _body_sized(P, comp, sizes, main, cfg)
     big[main] = False
-    if not ((gaps > cfg.keep_near_m) | big).any():
+    if not ((gaps > min(cfg.keep_near_m, cfg.one_sided_never_m)) | big).any():
         return body
     main_pts = P[body]
     if len(main_pts) > 4000:  # the score depends on the density: on the point count it was measured at
@@ -418,7 +430,7 @@ def _one_sided_parts(
     score, direction = one_sidedness(main_pts)
     if score <= PARTIAL_SCORE:
         return body
-    never = np.nonzero(big & (gaps > cfg.keep_near_m))[0]
+    never = np.nonzero(big & (gaps > cfg.one_sided_never_m))[0]
     return _occluded_parts(P, comp, body, None, cfg, direction=direction, never=never)
 
 
