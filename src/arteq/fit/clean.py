@@ -42,16 +42,16 @@ standard means (metres, any orientation: nothing assumes an up axis):
    In one camera's view (``viewpoint`` given) the body's own parts can lie beyond occlusion edges (a
    bent-over torso hides the waist; a leg behind the other, and its foot beyond it): components within
    ``occlusion_gap_m`` of the body, or bordering it in the image (directions from the camera within
-   ``occlusion_angle_factor`` angular point spacings) across a depth jump of at most
-   ``occlusion_jump_m``, and so on from those, are the body. A scan without its camera's position whose
-   largest component is one camera's view (``one_sided_views``; :func:`arteq.fit.partial.one_sidedness`)
-   is grown the same way from the estimated camera direction (a far camera: the image is the plane across
-   it); there body-sized pieces within ``one_sided_never_m`` are joined too (a torso and the legs cut from
-   it), and the fit's check refuses two people fitted as one. On held-out single views given as bare
-   points (32 per view) the cluster step had removed body parts from 24 side, 8 front, 4 back and 30 top-down scans
-   (hands, lower legs, whole legs) and split 5 of the 128 bodies in two; with the rule 274 of 7625 side-view
-   points are still removed (experiments/single_view/readings/clusters_probe.md); full surfaces are not
-   one-sided and are cleaned as before.
+   ``occlusion_angle_factor`` angular point spacings) across a depth jump of at most ``occlusion_jump_m``,
+   and so on from those, are the body. A scan without its camera's position whose largest component is one
+   camera's view (``one_sided_views``; :func:`arteq.fit.partial.one_sidedness`) is grown the same way from
+   the estimated camera direction (a far camera: the image is the plane across it); there body-sized
+   pieces within ``one_sided_never_m`` are joined too (a torso and the legs cut from it), and the fit's
+   check refuses two people fitted as one. On held-out single views given as bare points (32 per view) the
+   cluster step had removed body parts from 24 side, 8 front, 4 back and 30 top-down scans (hands, lower
+   legs, whole legs) and split 5 of the 128 bodies in two; with the rule 274 of 7625 side-view points are
+   still removed (experiments/single_view/readings/clusters_probe.md); full surfaces are not one-sided and
+   are cleaned as before.
 
 Clouds larger than ``max_points`` are cleaned on a random subset of that size and every point takes the
 label of its nearest subset point. Every input point gets a code (:data:`CODES`); counts and planes go to
