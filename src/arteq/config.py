@@ -43,6 +43,21 @@ def dataclass_from_strings(cls, items: Sequence[str], what: str, **base):
     return cls(**values)
 
 
+def dataclass_from_mapping(cls, cfg: Any, what: str):
+    """``cls`` (a dataclass) from a config group (a mapping, an OmegaConf node, None: the defaults, or
+    already a ``cls``); an unknown key is a ``ValueError`` that names ``what`` and the known keys."""
+    from dataclasses import fields
+
+    if isinstance(cfg, cls):
+        return cfg
+    cfg = dict(to_plain(cfg) or {})
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(cfg) - known)
+    if unknown:
+        raise ValueError(f"{what} has unknown keys {unknown}; known: {sorted(known)}")
+    return cls(**cfg)
+
+
 def radii_for_points(radii: Sequence[float], num_points: int, reference_points: int = 5000) -> list[float]:
     """Ball radii given for ``reference_points`` input points, scaled to keep the same number of
     neighbours at ``num_points``: points per area scale with N, so radii scale with ``sqrt(ref / N)``.

@@ -15,7 +15,7 @@ the option existed.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
@@ -52,14 +52,9 @@ class HoleConfig:
     @classmethod
     def from_mapping(cls, cfg: Any) -> HoleConfig:
         """From ``data.holes`` (a mapping, a config, or None: no holes); unknown keys are errors."""
-        if isinstance(cfg, HoleConfig):
-            return cfg
-        cfg = dict(cfg or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(cfg) - known)
-        if unknown:
-            raise ValueError(f"data.holes has unknown keys {unknown}; known: {sorted(known)}")
-        return cls(**cfg)
+        from arteq.config import dataclass_from_mapping
+
+        return dataclass_from_mapping(cls, cfg, "data.holes")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -39,7 +39,7 @@ Everything is vectorised torch and deterministic given the generator.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
@@ -121,14 +121,9 @@ class SingleViewConfig:
     @classmethod
     def from_mapping(cls, cfg: Any) -> SingleViewConfig:
         """From ``data.single_view`` (a mapping, a config, or None: the defaults); unknown keys are errors."""
-        if isinstance(cfg, SingleViewConfig):
-            return cfg
-        cfg = dict(cfg or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(cfg) - known)
-        if unknown:
-            raise ValueError(f"data.single_view has unknown keys {unknown}; known: {sorted(known)}")
-        return cls(**cfg)
+        from arteq.config import dataclass_from_mapping
+
+        return dataclass_from_mapping(cls, cfg, "data.single_view")
 
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
