@@ -200,8 +200,9 @@ class BodyScanDataset(Dataset):
         # density field anchored to the body's root frame: rotating the body does not move it
         centroids = (verts[faces].mean(1) - pelvis) @ grot[0]
         density = smooth_density_field(centroids, g, self.density_contrast, self.density_wavelength)
-        gh = seeded_generator(*key, "holes")  # its own stream: a cloud without holes is drawn as before
-        if self.holes is None or float(torch.rand((), generator=gh, dtype=torch.float64)) >= self.holes.prob:
+        gh = None if self.holes is None else seeded_generator(*key, "holes")  # a stream of its own: a cloud
+        # without holes is drawn as before the option existed
+        if gh is None or float(torch.rand((), generator=gh, dtype=torch.float64)) >= self.holes.prob:
             points, face_idx, bary = sample_surface(verts, faces, self.num_points, g, density, self.noise_std)
             return points, interpolate_labels(self.body.lbs_weights, faces, face_idx, bary)
         n = math.ceil(self.num_points * OVERSAMPLE)
