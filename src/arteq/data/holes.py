@@ -3,7 +3,8 @@
 A scanner leaves holes: an arm in front of the torso, a dark belt, the crotch and armpits, a thigh hidden by
 the other leg. The full-surface sampler draws complete surfaces only. With probability ``prob`` a training
 cloud is sampled with extra points, then ``count`` balls centred on random points of it (radius uniform in
-``radius_m``) are emptied and ``num_points`` of the points left are kept: the same point count, the same labels, a surface with holes.
+``radius_m``) are emptied and ``num_points`` of the points left are kept: the same point count, the same
+labels, a surface with holes.
 
 A hole that would leave fewer than ``num_points`` points is skipped, so a cloud never repeats points. Only
 the training stream gets holes (the validation and test sets are unchanged, their cache keys too); the
