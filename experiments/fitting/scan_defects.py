@@ -20,7 +20,14 @@ truth) is scanned once clean and once with each defect, all by this file's own s
 - ``one_side``: the points whose outward normal faces away from a random horizontal direction kept with
   probability 0.15 (one side scanned densely, the other in passing);
 - ``seat``: a 45 cm box under the hips touching the body from below, and the floor (a person on a stool);
-  applied to every body, whatever its pose.
+  applied to every body, whatever its pose;
+- ``clothed``: everyday fitted clothes, a T-shirt (trunk, collars, upper arms) 1.0 cm and trousers (pelvis,
+  thighs, shins) 0.8 cm off the skin, each with folds of +-0.6 cm (:func:`garment_offsets`); the surface
+  is moved out along its normals by that much before it is scanned; head, forearms, hands and feet bare;
+- ``loose``: a sweatshirt (also the forearms) 2.5 +- 1.2 cm and sweatpants 2.0 +- 1.0 cm off the skin.
+
+The truth stays the body under the clothes: what clothing does to V2V and (``--anny``) to stature and waist
+is what these two rows measure.
 
 Per body and defect: the status, the V2V (mean vertex distance to the true mesh) and the distance of the fit
 to the clean scan's fit (mean vertex distance). Summary per defect: V2V mean / worst, how many bodies are
@@ -40,7 +47,21 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-DEFECTS = ("clean", "dense", "sparse", "noisy", "no_soles", "no_crown", "holes", "one_side", "seat")
+DEFECTS = ("clean", "dense", "sparse", "noisy", "no_soles", "no_crown", "holes", "one_side", "seat", "clothed",
+           "loose")  # fmt: skip
+#: garments by body part (``arteq.body.skeleton.JOINT_NAMES``: a part is the vertices its joint drives most):
+#: ``(parts, base cm, folds cm)`` per garment
+GARMENTS = {
+    "clothed": (
+        (("spine1", "spine2", "spine3", "left_collar", "right_collar", "left_shoulder", "right_shoulder"), 1.0, 0.6),
+        (("pelvis", "left_hip", "right_hip", "left_knee", "right_knee"), 0.8, 0.6),
+    ),
+    "loose": (
+        (("spine1", "spine2", "spine3", "left_collar", "right_collar", "left_shoulder", "right_shoulder",
+          "left_elbow", "right_elbow"), 2.5, 1.2),
+        (("pelvis", "left_hip", "right_hip", "left_knee", "right_knee"), 2.0, 1.0),
+    ),
+}  # fmt: skip
 
 
 def _normals(verts: np.ndarray, faces: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -81,11 +102,36 @@ def _box(lo: np.ndarray, hi: np.ndarray, frame: np.ndarray, origin: np.ndarray, 
     return origin + p @ frame + rng.normal(0, 0.005, p.shape)
 
 
+def garment_offsets(kind: str, verts: np.ndarray, labels: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``[V]`` metres between skin and cloth for the garments of :data:`GARMENTS` ``[kind]``: per garment its
+    base plus folds, a sum of four plane waves over the posed vertices (wavelengths 8-25 cm, random
+    directions), scaled to +-folds; never below 2 mm; 0 on bare parts."""
+    from arteq.body.skeleton import JOINT_NAMES
+
+    out = np.zeros(len(verts))
+    for parts, base, folds in GARMENTS[kind]:
+        on = np.isin(labels, [JOINT_NAMES.index(p) for p in parts])
+        k = rng.normal(size=(4, 3))
+        k *= (2 * np.pi / rng.uniform(0.08, 0.25, 4) / np.linalg.norm(k, axis=1))[:, None]
+        wave = np.sin(verts[on] @ k.T + rng.uniform(0, 2 * np.pi, 4)).sum(1)
+        wave /= max(float(np.abs(wave).max()), 1e-9)
+        out[on] = np.maximum(base + folds * wave, 0.2) / 100.0
+    return out
+
+
 def defect_scan(kind: str, verts: np.ndarray, joints: np.ndarray, faces: np.ndarray, up: np.ndarray,
-                rng: np.random.Generator) -> np.ndarray:  # fmt: skip
-    """The scan of a posed body (``verts``, ``joints``, metres; ``up`` the scanner's up) with one defect."""
+                rng: np.random.Generator, labels: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+    """The scan of a posed body (``verts``, ``joints``, metres; ``up`` the scanner's up) with one defect
+    (``labels``: the body's ``part_labels``, for the garments)."""
     from user_scans import surface_scan
 
+    if kind in GARMENTS:
+        if labels is None:
+            raise ValueError(f"defect {kind!r} needs the body's part labels")
+        from arteq.geometry.normals import vertex_normals
+
+        vn = vertex_normals(torch.as_tensor(verts)[None], torch.as_tensor(faces))[0].numpy()
+        return surface_scan(verts + vn * garment_offsets(kind, verts, labels, rng)[:, None], faces, 5000, rng)
     if kind == "dense":
         return surface_scan(verts, faces, 200_000, rng)
     if kind == "sparse":
@@ -143,6 +189,9 @@ def main() -> None:
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
     ap.add_argument("--clean", nargs="*", default=[], metavar="KEY=VALUE", help="CleanConfig fields")
     ap.add_argument("--net-draws", type=int, default=None, help="Fitter(net_draws=...) (default: the Fitter's)")
+    ap.add_argument("--anny", action="store_true", help="also the Anny export: stature and waist against the truth")
+    ap.add_argument("--clothing", type=float, default=None, help="Fitter(clothing=CM): the skin under CM of cloth")
+    ap.add_argument("--clothing-iters", type=int, default=None, help="ClothingConfig.iters (default: its own)")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     defects = [d for d in a.defects.split(",") if d]
@@ -151,12 +200,17 @@ def main() -> None:
     t0 = time.time()
     people = People()
     faces = people.faces
+    labels = people.body.part_labels.numpy()
+    from arteq.fit.clean import CleanConfig
+    from arteq.fit.clothing import ClothingConfig
+
+    clothing = None
+    if a.clothing is not None:
+        clothing = ClothingConfig(a.clothing, **({"iters": a.clothing_iters} if a.clothing_iters else {}))
     from arteq.fit.refine import RefineConfig
 
-    from arteq.fit.clean import CleanConfig
-
-    fitter = Fitter(ckpt=a.ckpt, device="cpu", anny=False, refine_config=RefineConfig.from_strings(a.set),
-                    net_draws=a.net_draws, clean_config=CleanConfig.from_strings(a.clean))
+    fitter = Fitter(ckpt=a.ckpt, device="cpu", anny=a.anny, refine_config=RefineConfig.from_strings(a.set),
+                    net_draws=a.net_draws, clean_config=CleanConfig.from_strings(a.clean), clothing=clothing)
     kids = a.bodies // 2
     phens = people.sample(kids, (3.0, 12.0), 9100 + a.seed)
     phens += people.sample(a.bodies - kids, (18.0, 70.0), 9200 + a.seed)
@@ -172,16 +226,22 @@ def main() -> None:
         who = f"{'child' if k < kids else 'adult'} {p['age_years']:.0f} y, {pose_name}"
         clean_fit = None
         for kind in defects:
-            pts = defect_scan(kind, v, j, faces, up, np.random.default_rng([a.seed, k, DEFECTS.index(kind)]))
+            pts = defect_scan(kind, v, j, faces, up, np.random.default_rng([a.seed, k, DEFECTS.index(kind)]),
+                              labels=labels)
             r = fitter.fit_points(pts, name=f"{who}: {kind}")
             rec = {"body": who, "defect": kind, "points": len(pts), "status": r.status,
-                   "reason": r.uncertain_reason or r.message, "fit_s": r.timings.get("total")}  # fmt: skip
+                   "reason": r.uncertain_reason or r.message, "fit_s": r.timings.get("total"),
+                   "clothing_s": r.timings.get("clothing")}  # fmt: skip
             if r.vertices is not None:
                 rec["v2v_cm"] = float(np.linalg.norm(r.vertices - v, axis=1).mean() * 100)
                 if kind == "clean":
                     clean_fit = r.vertices
                 elif clean_fit is not None:
                     rec["vs_clean_cm"] = float(np.linalg.norm(r.vertices - clean_fit, axis=1).mean() * 100)
+            if r.anny:
+                m = r.anny["measurements"]
+                rec["stature_err_cm"] = (m["stature_m"] - p["stature_m"]) * 100
+                rec["waist_err_cm"] = (m["waist_circumference_m"] - p["waist_circumference_m"]) * 100
             records.append(rec)
             print(f"{who:28s} {kind:9s} {r.status:16s} V2V {rec.get('v2v_cm', float('nan')):6.2f} "
                   f"vs clean {rec.get('vs_clean_cm', float('nan')):6.2f} {rec['reason'] or ''}", flush=True)  # fmt: skip
@@ -193,12 +253,15 @@ def main() -> None:
              + (f" --set {' '.join(a.set)}" if a.set else "")
              + (f" --defects {a.defects}" if a.defects != ",".join(DEFECTS) else "")
              + (f" --net-draws {a.net_draws}" if a.net_draws is not None else "")
-             + (f" --clean {' '.join(a.clean)}" if a.clean else ""), "```\n",
+             + (f" --clean {' '.join(a.clean)}" if a.clean else "") + (" --anny" if a.anny else "")
+             + (f" --clothing {a.clothing:g}" if a.clothing is not None else "")
+             + (f" --clothing-iters {a.clothing_iters}" if a.clothing_iters else ""), "```\n",
              f"{a.bodies} bodies ({kids} children 3-12 y, {a.bodies - kids} adults 18-70 y), "
              f"{time.time() - t0:.0f} s in all; V2V usable at <= 3 cm.\n",
              "| defect | points | written (ok / uncertain) | refused | V2V mean / worst cm | usable | "
-             "from the clean fit, mean / worst cm |",
-             "|---|---:|---|---:|---|---:|---|"]  # fmt: skip
+             "from the clean fit, mean / worst cm |" + (" stature err mean / worst cm | waist err mean / worst cm |"
+                                                         if a.anny else ""),
+             "|---|---:|---|---:|---|---:|---|" + ("---|---|" if a.anny else "")]  # fmt: skip
     for kind in defects:
         rs = [r for r in records if r["defect"] == kind]
         ok = sum(r["status"] == "ok" for r in rs)
@@ -209,8 +272,13 @@ def main() -> None:
         vtxt = f"{np.mean(v):.2f} / {np.max(v):.2f}" if v else "-"
         ctxt = f"{np.mean(c):.2f} / {np.max(c):.2f}" if c else "-"
         usable = sum(x <= 3.0 for x in v)
-        lines.append(f"| {kind} | {pts} | {ok} / {unc} | {len(rs) - ok - unc} | {vtxt} | {usable} of {len(rs)} "
-                     f"| {ctxt} |")  # fmt: skip
+        row = f"| {kind} | {pts} | {ok} / {unc} | {len(rs) - ok - unc} | {vtxt} | {usable} of {len(rs)} | {ctxt} |"
+        if a.anny:
+            for key in ("stature_err_cm", "waist_err_cm"):
+                e = [r[key] for r in rs if key in r]
+                worst = max(e, key=abs) if e else None
+                row += f" {np.mean(e):+.2f} / {worst:+.2f} |" if e else " - |"
+        lines.append(row)
     lines += ["", "| body | " + " | ".join(defects) + " |", "|---|" + "---:|" * len(defects)]
     for who in dict.fromkeys(r["body"] for r in records):
         cells = []

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from arteq.fit.clean import CleanConfig, CleanResult, clean_scan
+from arteq.fit.clothing import ClothingConfig
 from arteq.fit.conditions import denoise, scan_conditions
 from arteq.fit.crossing import CrossingConfig, pairs_to_try, try_swaps
 from arteq.fit.quality import REFUSE_FLAGS, QualityThresholds, describe_flags, fit_quality, verdict
@@ -84,6 +85,10 @@ class FitResult:
     score, each pair's score (cm; where it stopped for those in ``stopped``) and the pair taken (``""``:
     none); None when none was tried. ``retry``: for a doubtful full scan fitted again (``Fitter(retries=K)``),
     every fit's surface score (cm; the first fit's first) and the index of the one kept; None otherwise.
+    ``clothing``: for a fit refined as the skin under clothes (``Fitter(clothing=...)``), the thickness (cm),
+    the covered parts, the iterations and how far the vertices moved from the clothed fit (``moved_cm``,
+    mean); None otherwise. Vertices, joints, pose, shape, point distances and the Anny export are then the
+    skin's; ``quality`` is the clothed fit's.
     """
 
     name: str
@@ -125,6 +130,7 @@ class FitResult:
     start_hypothesis: dict | None = None  # the refinement's start: partial scans' or the second start's pick
     crossing: dict | None = None  # full scans: swapped limb pairs tried (fit.crossing.try_swaps)
     retry: dict | None = None  # full scans fitted again (Fitter's retries): every fit's score, the one kept
+    clothing: dict | None = None  # the skin under the clothes (Fitter's clothing): thickness, parts, moved
 
     def seen_names(self, seen: bool = True) -> list[str]:
         """Names of the parts seen (or, ``seen=False``, not seen) in the scan."""
@@ -185,6 +191,8 @@ class FitResult:
             "part_points": self.part_points,
             "parts_seen": self.parts_seen,
             "crossing_taken": np.str_((self.crossing or {}).get("taken", "")),
+            # cm of cloth the body was fitted under (Fitter's clothing; 0: the scanned surface itself)
+            "clothing_cm": np.float64((self.clothing or {}).get("thickness_cm", 0.0)),
             **clutter,
             **npz_arrays(self.anny),
             **{k: np.asarray(v, dtype=np.float64) for k, v in q.items()},
@@ -216,6 +224,7 @@ class FitResult:
             "start": self.start_hypothesis,
             "crossing": self.crossing,
             "retry": self.retry,
+            "clothing": self.clothing,
             "anny": json_section(self.anny, self.anny_note),
             "seconds": {k: round(v, 3) for k, v in self.timings.items()},
         }
@@ -244,6 +253,7 @@ class FitResult:
             "start": (self.start_hypothesis or {}).get("picked", ""),
             "crossing": (self.crossing or {}).get("taken", ""),
             "retry": "" if self.retry is None else self.retry["picked"],
+            "clothing_cm": (self.clothing or {}).get("thickness_cm", 0.0),
             **{
                 f"removed_{k}": (self.clean.counts[k] if self.clean is not None else None)
                 for k in ("plane", "outlier", "cluster")
@@ -482,6 +492,11 @@ class Fitter:
             else the network's own count; more than the network's (up to what the body's file stores) adds
             components the network does not predict, started at 0 and fitted to the scan; the network's own
             count fits only those (experiments/fitting/shape_betas.md).
+        clothing: the scans are of dressed people: ``None`` (default) fits the scanned surface; a
+            :class:`arteq.fit.clothing.ClothingConfig` (or a thickness in cm, the default parts) refines every
+            written full scan's fit once more as the skin under that much cloth
+            (:func:`arteq.fit.clothing.under_clothes`; experiments/fitting/clothing.md). The check judges the
+            clothed fit; ``FitResult.clothing`` records the pass.
     """
 
     def __init__(
@@ -508,6 +523,7 @@ class Fitter:
         net_draws: int | None = None,
         retries: int | None = None,
         retry_above_cm: float | None = None,
+        clothing: Any = None,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
         from arteq.runtime import tune_cpu_allocator
@@ -565,6 +581,9 @@ class Fitter:
         self.retry_above_cm = RETRY_ABOVE_CM if retry_above_cm is None else float(retry_above_cm)
         self.clean = clean
         self.clean_config = clean_config or CleanConfig()
+        if clothing is not None and not isinstance(clothing, ClothingConfig):
+            clothing = ClothingConfig(thickness_cm=float(clothing))
+        self.clothing = clothing
         self.denoise_above_mm = denoise_above_mm
         self.faces = self.body.faces.cpu().numpy()
         self.vertex_parts = self.body.part_labels.cpu().numpy()
@@ -715,6 +734,8 @@ class Fitter:
         results, exports = self._fit_batch(items)
         if self.retries and self.refine and self.check:
             self._retry(items, results, exports)
+        if self.clothing is not None and self.refine:
+            self._under_clothes(items, results, exports)
         for r, (betas, pose_aa, verts_m) in zip(results, exports, strict=True):
             r.anny_note = self.anny_note
             if self.anny_export is not None and r.written:
@@ -726,6 +747,64 @@ class Fitter:
                     r.anny_note = f"failed: {type(exc).__name__}: {exc}"
                     r.warnings.append(f"Anny export {r.anny_note}")
         return results
+
+    def _under_clothes(
+        self, items: list[dict[str, Any]], results: list[FitResult], exports: list[tuple]
+    ) -> None:
+        """Every written full scan's fit refined once more as the skin under :attr:`clothing`
+        (:func:`arteq.fit.clothing.under_clothes`): ``results`` and ``exports`` updated in place."""
+        import roma
+        from scipy.spatial import cKDTree
+
+        from arteq.fit.clothing import under_clothes
+
+        rows = [
+            i for i, r in enumerate(results) if r.written and r.scan_mode == "full" and r.vertices is not None
+        ]
+        if not rows:
+            return
+        t0 = time.perf_counter()
+        dtype = self.body.v_template.dtype
+        pts, labels, rot, betas, transl = [], [], [], [], []
+        for i in rows:
+            r, c, s = results[i], items[i]["center"], results[i].scale_to_m
+            pts.append(r.scan_points.astype(np.float64) * s - c)
+            labels.append(r.scan_labels.astype(np.int64))
+            rot.append(roma.rotvec_to_rotmat(torch.as_tensor(r.pose_aa, dtype=torch.float64)))
+            betas.append(torch.as_tensor(r.betas, dtype=torch.float64))
+            transl.append(torch.as_tensor(r.transl_m - c, dtype=torch.float64))
+        init = {"local_rotmats": torch.stack(rot), "betas": torch.stack(betas), "transl": torch.stack(transl)}
+        out = under_clothes(
+            self.body,
+            torch.as_tensor(np.stack(pts), dtype=dtype, device=self.device),
+            torch.as_tensor(np.stack(labels), device=self.device),
+            {k: v.to(dtype=dtype, device=self.device) for k, v in init.items()},
+            self.clothing,
+            self.refine_config,
+        )
+        seconds = (time.perf_counter() - t0) / len(rows)
+        pose_aa = roma.rotmat_to_rotvec(roma.special_procrustes(out.local_rotmats.double())).cpu().numpy()
+        verts, joints = out.vertices.double().cpu().numpy(), out.joints.double().cpu().numpy()
+        for j, i in enumerate(rows):
+            r, it = results[i], items[i]
+            c, s = it["center"], r.scale_to_m
+            before = r.vertices.astype(np.float64) * s - c
+            r.vertices = ((verts[j] + c) / s).astype(np.float32)
+            r.joints = ((joints[j] + c) / s).astype(np.float32)
+            r.betas = out.betas[j].double().cpu().numpy().astype(np.float32)
+            r.pose_aa = pose_aa[j].astype(np.float32)
+            r.global_rotmats = out.global_rotmats[j].double().cpu().numpy().astype(np.float32)
+            r.transl_m = out.transl[j].double().cpu().numpy() + c
+            finite = it.get("finite", it["keep"])
+            d, vi = cKDTree(verts[j]).query(it.get("finite_centred", it["centred"]))
+            r.point_fit_labels[finite] = self.vertex_parts[vi]
+            r.point_distance[finite] = d / s
+            moved = float(np.linalg.norm(verts[j] - before, axis=1).mean() * 100)
+            r.clothing = {"thickness_cm": float(self.clothing.thickness_cm), "parts": self.clothing.parts,
+                          "iters": int(self.clothing.iters), "moved_cm": round(moved, 3)}  # fmt: skip
+            r.timings["clothing"] = seconds
+            r.timings["total"] += seconds
+            exports[i] = (out.betas[j].double().cpu().numpy(), pose_aa[j], verts[j] + c)
 
     def _retry(self, items: list[dict[str, Any]], results: list[FitResult], exports: list[tuple]) -> None:
         """Fit again the full scans whose fit the check doubts and whose surface score is above

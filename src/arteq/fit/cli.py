@@ -57,6 +57,13 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--retry-above", type=float, default=None, metavar="CM",
                     help="only fits whose surface score is above this (cm; default: "
                     "arteq.fit.api.RETRY_ABOVE_CM)")  # fmt: skip
+    ap.add_argument("--clothing", type=float, default=None, metavar="CM",
+                    help="the people wear clothes about CM thick over the skin (a T-shirt and jeans: "
+                    "about 1; sweats: 2-2.5): fit the body under them (full scans; default: the "
+                    "scanned surface)")  # fmt: skip
+    ap.add_argument("--clothing-parts", default=None, metavar="JOINTS",
+                    help="the parts the clothes cover, joint names comma-separated (default: trunk, upper "
+                    "arms, thighs and shins: arteq.fit.clothing.COVERED)")  # fmt: skip
     ap.add_argument("--preview", action=argparse.BooleanOptionalAction, default=True, help="write <name>.png")
     ap.add_argument("--overwrite", action="store_true", help="replace existing outputs (else skip them)")
     ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
@@ -131,12 +138,19 @@ def main(argv: list[str] | None = None) -> int:
         cfg = RefineConfig.from_strings(args.refine_set)
         if args.iters is not None:
             cfg.iters = args.iters
+        clothing = None
+        if args.clothing is not None or args.clothing_parts is not None:
+            from arteq.fit.clothing import COVERED, ClothingConfig
+
+            if args.clothing is None:
+                raise ValueError("--clothing-parts needs --clothing CM")
+            clothing = ClothingConfig(thickness_cm=args.clothing, parts=args.clothing_parts or COVERED)
         kwargs = dict(ckpt=args.ckpt, device=args.device, refine=args.refine, points=args.points,
                       refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny,
                       strict=args.strict, partial=args.partial, view_dir=args.view_dir,
                       crossing=args.crossing, second_start=args.second_start,
                       shape_betas=args.shape_betas, net_draws=args.net_draws, retries=args.retries,
-                      retry_above_cm=args.retry_above)  # fmt: skip
+                      retry_above_cm=args.retry_above, clothing=clothing)  # fmt: skip
         fitter = Fitter(**kwargs)
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"arteq-fit: {exc}", file=sys.stderr)

@@ -616,6 +616,7 @@ def refine(
     m2s_visible: Callable[[torch.Tensor], torch.Tensor] | None = None,
     stop: Callable[[int, torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
     stop_at: tuple[int, ...] = (),
+    offset: torch.Tensor | None = None,
 ) -> RefineOutput:
     """Refine ``init`` against ``points`` (see module docstring).
 
@@ -637,11 +638,19 @@ def refine(
             result is its fit at that iteration; the others' are those of a run without ``stop`` when
             ``stop_at`` holds only re-matching iterations (:func:`refine_iteration`).
         stop_at: iterations at which ``stop`` is called.
+        offset: ``[V]`` metres: the surface fitted to the scan is the body's pushed out along its vertex
+            normals by this much (clothing over the skin, :mod:`arteq.fit.clothing`); the result is the
+            body itself. ``None``: the body's own surface.
     Returns:
         :class:`RefineOutput`.
     """
     cfg = config or RefineConfig()
     t0 = time.perf_counter()
+    if offset is not None:
+        offset = offset.to(device=body.v_template.device, dtype=body.v_template.dtype)
+        if offset.shape != body.v_template.shape[:1] or not torch.isfinite(offset).all():
+            raise ValueError(f"refine: offset must be [{body.v_template.shape[0]}] finite metres, got "
+                             f"{tuple(offset.shape)}")  # fmt: skip
     if points.ndim != 3 or points.shape[-1] != 3:
         raise ValueError(f"refine: points must be [B, N, 3], got {tuple(points.shape)}")
     b, n, _ = points.shape
@@ -709,7 +718,7 @@ def refine(
         if when >= 0:
             searches.setdefault(when, []).append((kind, ids))
     history: list[dict[str, float]] = []
-    idx = normals = w = visible = sel = inv = None
+    idx = normals = w = visible = sel = inv = push_match = push_sub = None
     alive = torch.arange(b)  # the batch rows still refined (``stop``)
     stopped: dict[int, tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = {}  # row -> rot, betas, transl
     visible_of = m2s_visible
@@ -781,6 +790,8 @@ def refine(
                 rot = pose_of(delta)
                 if idx is not None:
                     idx, normals, w = idx[kd], normals[kd], w[kd]
+                    if offset is not None:
+                        push_match, push_sub = push_match[kd], push_sub[kd]
                     if visible is not None:
                         visible = visible[kd]
                     if partial:
@@ -789,8 +800,15 @@ def refine(
                     visible_of = _rows_visible(m2s_visible, alive, len(stopped) + len(alive))
         if rematch:
             with torch.no_grad():
+                vn = vertex_normals(vd, faces, tables.incidence if partial else None)
+                if offset is not None:  # the clothed surface: matched, and its normals' pushes kept
+                    push = vn * offset[:, None]
+                    vd = vd + push
+                    push_sub = push[:, m2s_subset]
                 idx = matcher.scan_to_model(vd, gated)
-                normals = _gather(vertex_normals(vd, faces, tables.incidence if partial else None), idx)
+                normals = _gather(vn, idx)
+                if offset is not None:
+                    push_match = _gather(push, idx)
                 if gated:
                     w = torch.ones(b, n, dtype=dtype, device=device)
                 else:
@@ -807,6 +825,8 @@ def refine(
         else:
             verts = body(betas=betas, pose=rot, transl=transl0 + dt).vertices
             v_match, v_sub = _gather(verts, idx), verts[:, m2s_subset]
+        if offset is not None:
+            v_match, v_sub = v_match + push_match, v_sub + push_sub
         sub_idx = matcher.model_to_scan(v_sub)
         diff = (points - v_match) * 100.0
         r2 = (diff * normals).sum(-1).square() + cfg.w_p2p * diff.square().sum(-1)
