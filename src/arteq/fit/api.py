@@ -494,7 +494,7 @@ class Fitter:
             count fits only those (experiments/fitting/shape_betas.md).
         clothing: the scans are of dressed people: ``None`` (default) fits the scanned surface; a
             :class:`arteq.fit.clothing.ClothingConfig` (or a thickness in cm, the default parts) refines every
-            written full scan's fit once more as the skin under that much cloth
+            written fit once more as the skin under that much cloth
             (:func:`arteq.fit.clothing.under_clothes`; experiments/fitting/clothing.md). The check judges the
             clothed fit; ``FitResult.clothing`` records the pass.
     """
@@ -751,18 +751,26 @@ class Fitter:
     def _under_clothes(
         self, items: list[dict[str, Any]], results: list[FitResult], exports: list[tuple]
     ) -> None:
-        """Every written full scan's fit refined once more as the skin under :attr:`clothing`
-        (:func:`arteq.fit.clothing.under_clothes`): ``results`` and ``exports`` updated in place."""
+        """Every written fit refined once more as the skin under :attr:`clothing`
+        (:func:`arteq.fit.clothing.under_clothes`; a partial scan's model -> scan term on what its camera
+        sees, as in its first refinement): ``results`` and ``exports`` updated in place."""
         import roma
         from scipy.spatial import cKDTree
 
         from arteq.fit.clothing import under_clothes
+        from arteq.fit.partial import visibility_function
 
-        rows = [
-            i for i, r in enumerate(results) if r.written and r.scan_mode == "full" and r.vertices is not None
-        ]
+        rows = [i for i, r in enumerate(results) if r.written and r.vertices is not None]
         if not rows:
             return
+        views = []
+        for i in rows:
+            mode = items[i].get("mode") or {}
+            views.append((mode["camera"], mode["view_dir"]) if mode.get("partial") else None)
+        visible = None
+        if any(v is not None for v in views):
+            incidence = body_tables(self.body, self.refine_config.m2s_vertices).incidence
+            visible = visibility_function(self.body.faces, views, incidence)
         t0 = time.perf_counter()
         dtype = self.body.v_template.dtype
         pts, labels, rot, betas, transl = [], [], [], [], []
@@ -781,6 +789,7 @@ class Fitter:
             {k: v.to(dtype=dtype, device=self.device) for k, v in init.items()},
             self.clothing,
             self.refine_config,
+            m2s_visible=visible,
         )
         seconds = (time.perf_counter() - t0) / len(rows)
         pose_aa = roma.rotmat_to_rotvec(roma.special_procrustes(out.local_rotmats.double())).cpu().numpy()
@@ -986,6 +995,7 @@ class Fitter:
         for i, it in enumerate(items):
             t2 = time.perf_counter()
             mode = modes[i]
+            it["mode"] = mode  # for the clothing pass (a partial scan's camera)
             subset = self.subset
             if mode["partial"]:  # coverage of what the camera could see
                 subset = subset[self._visible(verts[i], mode)[subset]]

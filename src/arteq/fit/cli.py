@@ -58,9 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="only fits whose surface score is above this (cm; default: "
                     "arteq.fit.api.RETRY_ABOVE_CM)")  # fmt: skip
     ap.add_argument("--clothing", type=float, default=None, metavar="CM",
-                    help="the people wear clothes about CM thick over the skin (a T-shirt and jeans: "
-                    "about 1; sweats: 2-2.5): fit the body under them (full scans; default: the "
-                    "scanned surface)")  # fmt: skip
+                    help="the people wear clothes about CM thick over the skin (a T-shirt and "
+                    "jeans: about 1; sweats: 2): fit the body under them (default: the scanned "
+                    "surface)")  # fmt: skip
     ap.add_argument("--clothing-parts", default=None, metavar="JOINTS",
                     help="the parts the clothes cover, joint names comma-separated (default: trunk, upper "
                     "arms, thighs and shins: arteq.fit.clothing.COVERED)")  # fmt: skip

@@ -72,9 +72,11 @@ def under_clothes(
     init: dict[str, torch.Tensor],
     clothing: ClothingConfig,
     base: RefineConfig | None = None,
+    m2s_visible=None,
 ) -> RefineOutput:
     """The bodies under the clothes of ``points [B, N, 3]`` (metres, with predicted parts ``labels [B, N]``),
-    refined from ``init`` (``local_rotmats``, ``betas``, ``transl``: the fits of the clothed surfaces)."""
+    refined from ``init`` (``local_rotmats``, ``betas``, ``transl``: the fits of the clothed surfaces);
+    ``m2s_visible``: for partial scans, as :func:`arteq.fit.refine.refine`'s."""
     k = len(JOINT_NAMES)
     if labels.shape != points.shape[:2]:
         raise ValueError(
@@ -82,4 +84,5 @@ def under_clothes(
         )
     probs = torch.nn.functional.one_hot(labels.long().clamp(0, k - 1), k).to(points.dtype)
     cfg = clothing.refine_config(base or RefineConfig())
-    return refine(body, points, probs, init, cfg, offset=clothing.offsets(body.part_labels))
+    offset = clothing.offsets(body.part_labels)
+    return refine(body, points, probs, init, cfg, m2s_visible=m2s_visible, offset=offset)
