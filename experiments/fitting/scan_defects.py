@@ -188,6 +188,7 @@ def main() -> None:
     ap.add_argument("--json", default=None, help="every fit's record")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="RefineConfig fields")
     ap.add_argument("--clean", nargs="*", default=[], metavar="KEY=VALUE", help="CleanConfig fields")
+    ap.add_argument("--crossing", nargs="*", default=[], metavar="KEY=VALUE", help="CrossingConfig fields")
     ap.add_argument("--net-draws", type=int, default=None, help="Fitter(net_draws=...) (default: the Fitter's)")
     ap.add_argument("--anny", action="store_true", help="also the Anny export: stature and waist against the truth")
     ap.add_argument("--clothing", type=float, default=None, help="Fitter(clothing=CM): the skin under CM of cloth")
@@ -203,6 +204,7 @@ def main() -> None:
     labels = people.body.part_labels.numpy()
     from arteq.fit.clean import CleanConfig
     from arteq.fit.clothing import ClothingConfig
+    from arteq.fit.crossing import CrossingConfig
 
     clothing = None
     if a.clothing is not None:
@@ -210,7 +212,8 @@ def main() -> None:
     from arteq.fit.refine import RefineConfig
 
     fitter = Fitter(ckpt=a.ckpt, device="cpu", anny=a.anny, refine_config=RefineConfig.from_strings(a.set),
-                    net_draws=a.net_draws, clean_config=CleanConfig.from_strings(a.clean), clothing=clothing)
+                    net_draws=a.net_draws, clean_config=CleanConfig.from_strings(a.clean), clothing=clothing,
+                    crossing=CrossingConfig.from_strings(a.crossing))
     kids = a.bodies // 2
     phens = people.sample(kids, (3.0, 12.0), 9100 + a.seed)
     phens += people.sample(a.bodies - kids, (18.0, 70.0), 9200 + a.seed)
@@ -253,7 +256,8 @@ def main() -> None:
              + (f" --set {' '.join(a.set)}" if a.set else "")
              + (f" --defects {a.defects}" if a.defects != ",".join(DEFECTS) else "")
              + (f" --net-draws {a.net_draws}" if a.net_draws is not None else "")
-             + (f" --clean {' '.join(a.clean)}" if a.clean else "") + (" --anny" if a.anny else "")
+             + (f" --clean {' '.join(a.clean)}" if a.clean else "")
+             + (f" --crossing {' '.join(a.crossing)}" if a.crossing else "") + (" --anny" if a.anny else "")
              + (f" --clothing {a.clothing:g}" if a.clothing is not None else "")
              + (f" --clothing-iters {a.clothing_iters}" if a.clothing_iters else ""), "```\n",
              f"{a.bodies} bodies ({kids} children 3-12 y, {a.bodies - kids} adults 18-70 y), "

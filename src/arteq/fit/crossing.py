@@ -75,7 +75,9 @@ class CrossingConfig:
     #: are raised (each limb's end ``chain_raised_m`` beyond its root along the pelvis -> neck axis: arms
     #: overhead) and every pair of the chain comes within ``chain_near_m`` (0: only the former)
     chains: bool = True
-    chain_near_m: float = 0.3
+    #: 0.3 until 2026-12-06: an adult's arms crossed overhead, fitted parallel 30.3 cm apart, stayed 21 cm off
+    #: (experiments/fitting/crossing.md, last section)
+    chain_near_m: float = 0.4
     chain_raised_m: float = 0.1
     #: also try all four limbs swapped at once (:data:`ALL_LIMBS`) where both chains are tried (off: on the
     #: lost acrobatic fits it starts nearer the truth, 39 -> 20 cm V2V on a bow, but refines to a worse
