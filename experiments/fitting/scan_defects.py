@@ -174,7 +174,7 @@ def defect_scan(kind: str, verts: np.ndarray, joints: np.ndarray, faces: np.ndar
 
 
 def main() -> None:
-    from user_scans import EVERYDAY, People, pose_from_template, z_up_heading
+    from user_scans import EVERYDAY, People, measurement_errors, pose_from_template, z_up_heading
 
     from arteq.fit import Fitter
 
@@ -242,9 +242,7 @@ def main() -> None:
                 elif clean_fit is not None:
                     rec["vs_clean_cm"] = float(np.linalg.norm(r.vertices - clean_fit, axis=1).mean() * 100)
             if r.anny:
-                m = r.anny["measurements"]
-                rec["stature_err_cm"] = (m["stature_m"] - p["stature_m"]) * 100
-                rec["waist_err_cm"] = (m["waist_circumference_m"] - p["waist_circumference_m"]) * 100
+                rec.update(measurement_errors(r.anny, p))
             records.append(rec)
             print(f"{who:28s} {kind:9s} {r.status:16s} V2V {rec.get('v2v_cm', float('nan')):6.2f} "
                   f"vs clean {rec.get('vs_clean_cm', float('nan')):6.2f} {rec['reason'] or ''}", flush=True)  # fmt: skip

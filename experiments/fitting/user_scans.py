@@ -360,6 +360,13 @@ def joint_error_cm(fitted: np.ndarray, truth: np.ndarray) -> float:
     return float(np.linalg.norm(fitted[idx] - truth[idx], axis=1).mean() * 100)
 
 
+def measurement_errors(anny: dict, truth: dict) -> dict:
+    """Stature and waist error (cm) of a fit's Anny export against the truth's measurements (metres)."""
+    m = anny["measurements"]
+    return {"stature_err_cm": (m["stature_m"] - truth["stature_m"]) * 100,
+            "waist_err_cm": (m["waist_circumference_m"] - truth["waist_circumference_m"]) * 100}  # fmt: skip
+
+
 def fit_scan(fitter, scan: Scan, other=None) -> dict:
     """Fit one scan and compare it with its ground truth (and, for clutter, with the clean scan's fit)."""
     t = time.perf_counter()
@@ -377,9 +384,7 @@ def fit_scan(fitter, scan: Scan, other=None) -> dict:
         rec["truth"] = dict(scan.truth)
     # non-bodies have no truth: a written fit of one is a false acceptance, counted by goals()
     if r.anny and "stature_m" in scan.truth:
-        m = r.anny["measurements"]
-        rec["stature_err_cm"] = (m["stature_m"] - scan.truth["stature_m"]) * 100
-        rec["waist_err_cm"] = (m["waist_circumference_m"] - scan.truth["waist_circumference_m"]) * 100
+        rec.update(measurement_errors(r.anny, scan.truth))
         rec["age_fit_years"] = r.anny["age_years"]
     if scan.clean_points is not None and r.vertices is not None:
         c = fitter.fit_points(scan.clean_points, name=scan.name + " (clean)")

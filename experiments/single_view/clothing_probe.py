@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fitting"))
 
 def main() -> None:
     from scan_defects import garment_offsets
-    from user_scans import EVERYDAY, People, pose_from_template
+    from user_scans import EVERYDAY, People, measurement_errors, pose_from_template
 
     from arteq.data.single_view import single_view_scan
     from arteq.fit import Fitter
@@ -74,9 +74,7 @@ def main() -> None:
                 if r.vertices is not None:
                     rec["v2v_cm"] = float(np.linalg.norm(r.vertices - v, axis=1).mean() * 100)
                 if r.anny:
-                    m = r.anny["measurements"]
-                    rec["stature_err_cm"] = (m["stature_m"] - p["stature_m"]) * 100
-                    rec["waist_err_cm"] = (m["waist_circumference_m"] - p["waist_circumference_m"]) * 100
+                    rec.update(measurement_errors(r.anny, p))
                 records.append(rec)
                 print(json.dumps(rec), flush=True)
     print(f"\n{a.defect} scans, {a.bodies} bodies, seed {a.seed}; mean V2V / stature err / waist err (cm):")
