@@ -772,6 +772,8 @@ def test_clothing_fits_the_skin_under_the_clothes_and_records_it(
     assert "--clothing-parts needs --clothing" in capsys.readouterr().err
     assert cli_main([*base, "--clothing", "1", "--clothing-parts", "spine1,tail"]) == 2
     assert "'tail'" in capsys.readouterr().err
+    assert cli_main([*base, "--clothing", "1", "--no-refine"]) == 2
+    assert "needs refine=True" in capsys.readouterr().err
 
 
 def test_clothing_pass_on_one_cameras_view(tiny_ckpt, body):

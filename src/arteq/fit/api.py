@@ -583,6 +583,8 @@ class Fitter:
         self.clean_config = clean_config or CleanConfig()
         if clothing is not None and not isinstance(clothing, ClothingConfig):
             clothing = ClothingConfig(thickness_cm=float(clothing))
+        if clothing is not None and not refine:
+            raise ValueError("clothing is a last refinement: it needs refine=True (drop --no-refine)")
         self.clothing = clothing
         self.denoise_above_mm = denoise_above_mm
         self.faces = self.body.faces.cpu().numpy()
