@@ -736,7 +736,7 @@ class Fitter:
         results, exports = self._fit_batch(items)
         if self.retries and self.refine and self.check:
             self._retry(items, results, exports)
-        if self.clothing is not None and self.refine:
+        if self.clothing is not None:  # refine is on (checked when built)
             self._under_clothes(items, results, exports)
         for r, (betas, pose_aa, verts_m) in zip(results, exports, strict=True):
             r.anny_note = self.anny_note
@@ -765,6 +765,7 @@ class Fitter:
         rows = [i for i, r in enumerate(results) if r.written and r.vertices is not None]
         if not rows:
             return
+        t0 = time.perf_counter()
         views = []
         for i in rows:
             mode = items[i].get("mode") or {}
@@ -773,7 +774,6 @@ class Fitter:
         if any(v is not None for v in views):
             incidence = body_tables(self.body, self.refine_config.m2s_vertices).incidence
             visible = visibility_function(self.body.faces, views, incidence)
-        t0 = time.perf_counter()
         dtype = self.body.v_template.dtype
         pts, labels, rot, betas, transl = [], [], [], [], []
         for i in rows:
