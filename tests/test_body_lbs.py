@@ -170,3 +170,37 @@ def test_bad_inputs_raise_clear_errors():
             PARENTS,
             torch.zeros(10, 22),
         )
+
+
+def _kinematics_by_joint(local: torch.Tensor, rest_joints: torch.Tensor, parents) -> tuple:
+    """The textbook recursion, one joint at a time: R_k = R_p theta_k, J'_k = J'_p + R_p (J_k - J_p)."""
+    rots, joints = [local[:, 0]], [rest_joints[:, 0]]
+    for k in range(1, len(parents)):
+        p = parents[k]
+        rots.append(rots[p] @ local[:, k])
+        joints.append(joints[p] + (rots[p] @ (rest_joints[:, k] - rest_joints[:, p])[..., None])[..., 0])
+    return torch.stack(rots, 1), torch.stack(joints, 1)
+
+
+@pytest.mark.parametrize("parents", [PARENTS, (-1, 0, 1, 0, 3, 1, 5, 5, 2)])
+def test_batched_kinematics_agree_with_the_joint_by_joint_recursion(parents):
+    from arteq.body.lbs import skin
+    from arteq.body.skeleton import local_to_global
+
+    k = len(parents)
+    g = torch.Generator().manual_seed(3)
+    local = roma.rotvec_to_rotmat(torch.randn(4, k, 3, generator=g, dtype=torch.float64))
+    rest = torch.randn(4, k, 3, generator=g, dtype=torch.float64)
+    rots, joints = _kinematics_by_joint(local, rest, parents)
+    torch.testing.assert_close(local_to_global(local, tuple(parents)), rots, rtol=0, atol=1e-13)
+    verts = torch.randn(4, 10, 3, generator=g, dtype=torch.float64)
+    weights = torch.softmax(torch.randn(10, k, generator=g, dtype=torch.float64), -1)
+    _, posed, _ = skin(verts, rest, local, weights, parents=parents)
+    torch.testing.assert_close(posed, joints, rtol=0, atol=1e-13)
+
+
+def test_kinematics_refuse_a_parent_after_its_child():
+    from arteq.body.skeleton import local_to_global
+
+    with pytest.raises(ValueError, match="parent before its child"):
+        local_to_global(torch.eye(3).expand(1, 3, 3, 3), (-1, 2, 0))

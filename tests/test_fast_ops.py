@@ -148,3 +148,25 @@ def test_caches_built_in_inference_mode_still_train():
     r = rots.clone().requires_grad_(True)
     skeleton.global_to_local(r).sum().backward()
     assert r.grad is not None
+
+
+def test_instance_norm_agrees_with_var_mean_in_values_and_gradients():
+    from arteq.equivariant import instance_norm
+
+    torch.manual_seed(0)
+    x = (torch.randn(3, 17, 60, 5, dtype=torch.float64) * 2 + 3).requires_grad_(True)
+    g = torch.randn_like(x)
+    var, mean = torch.var_mean(x, dim=(1, 2), keepdim=True, unbiased=False)
+    ref = (x - mean) * torch.rsqrt(var + 1e-5)
+    (gr,) = torch.autograd.grad((ref * g).sum(), x)
+    out = instance_norm(x)
+    (go,) = torch.autograd.grad((out * g).sum(), x)
+    torch.testing.assert_close(out, ref, rtol=0, atol=1e-12)
+    torch.testing.assert_close(go, gr, rtol=0, atol=1e-12)
+    # per sample and channel: zero mean, unit variance over points and group elements
+    torch.testing.assert_close(out.mean((1, 2)), torch.zeros(3, 5, dtype=torch.float64), rtol=0, atol=1e-12)
+    # half-precision input: statistics and result in float32, as close to the float64 result as float32 allows
+    low = instance_norm(x.detach().to(torch.bfloat16))
+    assert low.dtype == torch.float32
+    exact = instance_norm(x.detach().to(torch.bfloat16).double())
+    torch.testing.assert_close(low.double(), exact, atol=1e-5, rtol=0)

@@ -357,3 +357,25 @@ def test_rotation_between_batched_agrees_with_one_by_one():
         want = rotation_between(torch.as_tensor(aim), torch.as_tensor(d)).numpy()
         np.testing.assert_allclose(r, want, atol=1e-9)
         np.testing.assert_allclose(r @ (aim / np.linalg.norm(aim)), d / np.linalg.norm(d), atol=1e-9)
+
+
+def test_fps_subsets_are_each_clouds_own_and_reused_for_a_cloud_met_before():
+    from arteq.fit import refine as R
+    from arteq.geometry.pointops import fps_from_centroid
+
+    g = torch.Generator().manual_seed(0)
+    a, b = torch.randn(2, 300, 3, generator=g).unbind(0)
+    batch = torch.stack([a, b, a])  # a cloud twice in one batch (a second start)
+    want = fps_from_centroid(batch.double(), 50).sort(dim=1).values
+    calls = []
+    real = R.fps_from_centroid
+    R.fps_from_centroid = lambda x, m: calls.append(len(x)) or real(x, m)
+    try:
+        assert torch.equal(R.fps_subsets(batch, 50), want)
+        assert torch.equal(R.fps_subsets(batch[1:], 50), want[1:])  # met before: not sampled again
+        assert torch.equal(
+            R.fps_subsets(batch[:1], 40), fps_from_centroid(a[None].double(), 40).sort(1).values
+        )
+    finally:
+        R.fps_from_centroid = real
+    assert calls == [2, 1]  # two distinct clouds, then none, then another count

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 import torch
 
-from arteq.body.skeleton import PARENTS, local_to_global
+from arteq.body.skeleton import PARENTS, local_to_global, tree_tables
 
 
 def _check(name: str, x: torch.Tensor, shape: tuple) -> None:
@@ -76,13 +76,11 @@ def skin(
         v_shaped = v_shaped + (feats @ posedirs[: feats.shape[1]]).view(B, V, 3)
 
     global_rot = local_to_global(pose, tuple(parents))
-    # Posed joints: J'_k = J'_p + G_p (J_k - J_p); the root stays at its rest position.
-    posed = [rest_joints[:, 0]]
-    for k in range(1, K):
-        p = parents[k]
-        offset = rest_joints[:, k] - rest_joints[:, p]
-        posed.append(posed[p] + (global_rot[:, p] @ offset.unsqueeze(-1)).squeeze(-1))
-    joints = torch.stack(posed, dim=1)
+    # Posed joints: J'_k = J'_p + G_p (J_k - J_p); the root stays at its rest position. Unrolled:
+    # J'_k = J_0 + sum over the path's non-root joints a of G_p(a) (J_a - J_p(a)), one product for all.
+    _, _, ancestors, par = tree_tables(tuple(parents), pose.device)
+    offsets = (global_rot[:, par] @ (rest_joints - rest_joints[:, par]).unsqueeze(-1)).squeeze(-1)
+    joints = rest_joints[:, :1] + torch.einsum("ka,bac->bkc", ancestors.to(offsets.dtype), offsets)
     # Per-joint rigid transform x -> G_k x + (J'_k - G_k J_k), blended per vertex.
     trans = joints - (global_rot @ rest_joints.unsqueeze(-1)).squeeze(-1)  # [B, K, 3]
     rot_v = torch.einsum("vk,bkij->bvij", lbs_weights, global_rot)

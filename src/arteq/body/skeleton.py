@@ -71,15 +71,60 @@ def _parent_index(parents: tuple[int, ...], device: torch.device) -> torch.Tenso
     return torch.tensor([p if p >= 0 else 0 for p in parents], device=device)
 
 
+@tensor_cache(maxsize=16)
+def tree_tables(
+    parents: tuple[int, ...], device: torch.device
+) -> tuple[list[tuple[torch.Tensor, torch.Tensor]], torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Index tables of a tree (root first, parents before children) for batched kinematics.
+
+    Returns ``(levels, order_inv, ancestors, parent)``: per depth 1, 2, ... the joints at that depth and
+    their parents' positions in the depth-first-level order (root, then depth 1, 2, ...); the position of
+    each joint in that order; ``ancestors [K, K]`` with ``ancestors[k, a] = 1`` for every non-root ``a`` on
+    the path from the root to ``k`` (``k`` included); the parent of each joint (the root's own index for
+    the root).
+    """
+    k_all = len(parents)
+    if parents[0] >= 0 or any(not 0 <= parents[k] < k for k in range(1, k_all)):
+        raise ValueError(f"parents must list the root first (-1) and each parent before its child: {parents}")
+    depth = [0] * k_all
+    by_depth: dict[int, list[int]] = {}
+    for k in range(1, k_all):
+        depth[k] = depth[parents[k]] + 1
+        by_depth.setdefault(depth[k], []).append(k)
+    order = [0] + [k for d in sorted(by_depth) for k in by_depth[d]]
+    pos = {k: i for i, k in enumerate(order)}
+    levels = [
+        (
+            torch.tensor(by_depth[d], dtype=torch.long, device=device),
+            torch.tensor([pos[parents[k]] for k in by_depth[d]], dtype=torch.long, device=device),
+        )
+        for d in sorted(by_depth)
+    ]
+    ancestors = torch.zeros(k_all, k_all, dtype=torch.float64)
+    for k in range(1, k_all):
+        a = k
+        while a > 0:
+            ancestors[k, a] = 1.0
+            a = parents[a]
+    order_inv = torch.tensor([pos[k] for k in range(k_all)], dtype=torch.long, device=device)
+    parent = torch.tensor([max(p, 0) for p in parents], dtype=torch.long, device=device)
+    return levels, order_inv, ancestors.to(device), parent
+
+
 def local_to_global(local_rotmats: torch.Tensor, parents: tuple[int, ...] = PARENTS) -> torch.Tensor:
     """Global rotations by accumulating local ones down the tree (parents precede children).
+
+    One batched product per tree depth (8 for the body's 22 joints) instead of one per joint: the same
+    products, so the same values, with a third of the operations forward and backward.
 
     Args:
         local_rotmats: ``[..., K, 3, 3]``.
     Returns:
         ``[..., K, 3, 3]`` with ``R_k = R_parent(k) theta_k``.
     """
-    out = [local_rotmats[..., 0, :, :]]
-    for k in range(1, len(parents)):
-        out.append(out[parents[k]] @ local_rotmats[..., k, :, :])
-    return torch.stack(out, dim=-3)
+    levels, order_inv, _, _ = tree_tables(tuple(parents), local_rotmats.device)
+    done = local_rotmats[..., :1, :, :]  # the joints so far, in depth order
+    for ids, parent_pos in levels:
+        new = done.index_select(-3, parent_pos) @ local_rotmats.index_select(-3, ids)
+        done = torch.cat([done, new], dim=-3)
+    return done.index_select(-3, order_inv)

@@ -56,11 +56,18 @@ def instance_norm(x: torch.Tensor, eps: float = 1e-5) -> torch.Tensor:
     """Normalise x [B, N, A, C] per sample and channel over points and group elements (no affine).
 
     Statistics in at least float32 (also under autocast: bf16 sums over 10^5 elements lose digits).
+    Two passes (the mean, then the mean square about it), each reduced over the points first with the
+    contiguous ``A * C`` row kept: on CPU about 3x faster forward and 1.7x forward and backward than
+    ``torch.var_mean`` over the strided dims (1, 2) (benchmarks/README.md), the same to float rounding.
     """
     with torch.autocast(x.device.type, enabled=False):
         xf = x.float() if x.dtype in (torch.float16, torch.bfloat16) else x
-        var, mean = torch.var_mean(xf, dim=(1, 2), keepdim=True, unbiased=False)
-        return (xf - mean) * torch.rsqrt(var + eps)
+        b, n, a, c = xf.shape
+        mean = xf.reshape(b, n, a * c).mean(1).reshape(b, a, c).mean(1).reshape(b, 1, 1, c)
+        d = xf - mean
+        rows = d.reshape(b, n, a * c)
+        var = torch.linalg.vecdot(rows, rows, dim=1).reshape(b, a, c).mean(1).reshape(b, 1, 1, c) / n
+        return d * torch.rsqrt(var + eps)
 
 
 def spatial_aggregate(
