@@ -13,7 +13,8 @@ Lightning loop overhead). ``--impl reference`` runs the backbone's reference imp
 group conv, scatter-backward re-indexing, gather 3-NN upsampling: the code before the speed-up,
 ``arteq.equivariant.reference_ops``), ``fast`` the default. ``--old-tree DIR`` adds rows ``old``: the same
 step with the code and configs of another checkout (e.g. a ``git worktree`` of the commit before the
-speed-up), glibc allocator as is, in the same run, so that ratios are measured back to back. Reported:
+speed-up), its allocator tuned like the other rows where that tree has the tuning (as is before it), in the
+same run, so that ratios are measured back to back. Reported:
 median seconds per step over ``--steps`` steps after one warm-up step, steps/s, and peak RSS growth
 during the steps.
 """
@@ -60,8 +61,15 @@ def build(points: int, overrides: list[str], conf: str = CONF):
 def run_one(points: int, impl: str, steps: int, overrides: list[str], malloc: str, conf: str) -> dict:
     import contextlib
 
-    if impl == "old":  # another checkout's code (on PYTHONPATH): no reference switch, no allocator tuning
+    if impl == "old":  # another checkout's code (on PYTHONPATH): no reference switch
         switch = contextlib.nullcontext()
+        if malloc == "tuned":
+            try:  # the same allocator as the other rows where that tree has the tuning
+                from arteq.runtime import tune_cpu_allocator
+
+                tune_cpu_allocator()
+            except ImportError:
+                pass
     else:
         from arteq.equivariant import reference_ops
         from arteq.runtime import tune_cpu_allocator

@@ -602,6 +602,11 @@ class Fitter:
                 if anny:
                     raise
                 self.anny_note = f"off: {exc}"
+        # modules every fit uses, imported at set-up with the model rather than inside the first scan's timed
+        # stages (scipy.spatial alone took 0.7 s of a first scan's "clean" time)
+        import scipy.spatial  # noqa: F401
+
+        import arteq.fit.partial  # noqa: F401
 
     def _shape_body(self, shape_betas: int | None) -> torch.nn.Module:
         """The body the refinement fits: the network's, or the same body with ``shape_betas`` components
