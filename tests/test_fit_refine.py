@@ -379,3 +379,21 @@ def test_fps_subsets_are_each_clouds_own_and_reused_for_a_cloud_met_before():
     finally:
         R.fps_from_centroid = real
     assert calls == [2, 1]  # two distinct clouds, then none, then another count
+
+
+def test_skin_subset_poses_the_same_vertices_as_the_body(body):
+    from arteq.fit.refine import skin_subset, subset_rows
+
+    g = torch.Generator().manual_seed(1)
+    dtype = body.v_template.dtype
+    betas = torch.randn(2, body.num_betas, generator=g).to(dtype)
+    pose = roma.rotvec_to_rotmat(0.4 * torch.randn(2, 22, 3, generator=g)).to(dtype)
+    transl = torch.randn(2, 3, generator=g).to(dtype)
+    sel = torch.randperm(body.v_template.shape[0], generator=g)[:300].sort().values
+    full = body(betas=betas, pose=pose, transl=transl).vertices[:, sel]
+    tables = body_tables(body)
+    kept = subset_rows(body, sel, body.num_betas)
+    torch.testing.assert_close(skin_subset(body, tables, sel, betas, pose, transl), full, rtol=0, atol=1e-5)
+    torch.testing.assert_close(
+        skin_subset(body, tables, sel, betas, pose, transl, kept), full, rtol=0, atol=1e-5
+    )

@@ -227,15 +227,29 @@ def fps_subsets(points: torch.Tensor, count: int) -> torch.Tensor:
     return torch.stack([_FPS_SUBSETS[k] for k in keys]).to(points.device)
 
 
+def subset_rows(body: torch.nn.Module, sel: torch.Tensor, nb: int) -> tuple[torch.Tensor, ...]:
+    """The body's rows of the vertices ``sel [S]`` that :func:`skin_subset` uses (template, the first ``nb``
+    shape directions, skinning weights): gathered once per set of vertices, not at every iteration."""
+    return body.v_template[sel], body.shapedirs[sel, :, :nb], body.lbs_weights[sel]
+
+
 def skin_subset(
-    body: torch.nn.Module, tables: BodyTables, sel: torch.Tensor, betas, rotmats, transl
+    body: torch.nn.Module,
+    tables: BodyTables,
+    sel: torch.Tensor,
+    betas,
+    rotmats,
+    transl,
+    rows: tuple[torch.Tensor, ...] | None = None,
 ) -> torch.Tensor:
     """Posed vertices ``sel [S]`` only (differentiable): ``[B, S, 3]``, the same as
-    ``body(betas, rotmats, transl).vertices[:, sel]`` for a body without pose correctives."""
+    ``body(betas, rotmats, transl).vertices[:, sel]`` for a body without pose correctives. ``rows``:
+    :func:`subset_rows` of ``sel`` when the caller keeps them."""
     nb = betas.shape[1]
-    v_shaped = body.v_template[sel] + torch.einsum("bl,vcl->bvc", betas, body.shapedirs[sel, :, :nb])
+    template, shapedirs, weights = rows if rows is not None else subset_rows(body, sel, nb)
+    v_shaped = template + torch.einsum("bl,vcl->bvc", betas, shapedirs)
     rest_joints = tables.j_template + torch.einsum("bl,kcl->bkc", betas, tables.j_shapedirs[..., :nb])
-    verts, _, _ = skin(v_shaped, rest_joints, rotmats, body.lbs_weights[sel], transl=transl)
+    verts, _, _ = skin(v_shaped, rest_joints, rotmats, weights, transl=transl)
     return verts
 
 
@@ -830,6 +844,7 @@ def refine(
                         visible = visible[kd]
                     if partial:
                         sel, inv = torch.unique(torch.cat([idx.reshape(-1), m2s_subset]), return_inverse=True)
+                        sel_rows = subset_rows(body, sel, nb)
                 if m2s_visible is not None:
                     visible_of = _rows_visible(m2s_visible, alive, len(stopped) + len(alive))
         if rematch:
@@ -852,8 +867,9 @@ def refine(
                     visible = visible_of(vd).to(device)[:, m2s_subset]
                 if partial:  # the vertices the objective uses: the matched ones and the subset
                     sel, inv = torch.unique(torch.cat([idx.reshape(-1), m2s_subset]), return_inverse=True)
+                    sel_rows = subset_rows(body, sel, nb)
         if partial:
-            vs = skin_subset(body, tables, sel, betas, rot, transl0 + dt)
+            vs = skin_subset(body, tables, sel, betas, rot, transl0 + dt, sel_rows)
             v_match = _gather(vs, inv[: b * n].view(b, n))
             v_sub = vs[:, inv[b * n :]]
         else:
