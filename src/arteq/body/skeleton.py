@@ -107,8 +107,7 @@ def tree_tables(
             ancestors[k, a] = 1.0
             a = parents[a]
     order_inv = torch.tensor([pos[k] for k in range(k_all)], dtype=torch.long, device=device)
-    parent = torch.tensor([max(p, 0) for p in parents], dtype=torch.long, device=device)
-    return levels, order_inv, ancestors.to(device), parent
+    return levels, order_inv, ancestors.to(device), _parent_index(parents, device)
 
 
 def local_to_global(local_rotmats: torch.Tensor, parents: tuple[int, ...] = PARENTS) -> torch.Tensor:
