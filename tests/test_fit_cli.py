@@ -44,7 +44,7 @@ class OracleFitter(CentreKeepingFitter):
     truth: dict | None = None
 
     @torch.no_grad()
-    def _network(self, clouds, turns=None):
+    def _network(self, clouds, turns=None, shifts=None):
         """One scan's draws (``net_draws``): noisy labels per draw, the same perturbed pose for all."""
         s, c = self.truth, self._centre
         rng = np.random.default_rng(0)
@@ -592,7 +592,7 @@ class _RestPoseFitter(OracleFitter):
     """The oracle with every joint at rest: a start far from a posed scan."""
 
     @torch.no_grad()
-    def _network(self, clouds, turns=None):
+    def _network(self, clouds, turns=None, shifts=None):
         p = super()._network(clouds, turns)
         p["local_rotmats"] = torch.eye(3).expand_as(p["local_rotmats"]).clone()
         return p
@@ -623,7 +623,7 @@ class _LostUnlessTurned(OracleFitter):
     """The oracle's answer for a turned reading of the scan (a retry's), every joint at rest for the first."""
 
     @torch.no_grad()
-    def _network(self, clouds, turns=None):
+    def _network(self, clouds, turns=None, shifts=None):
         p = super()._network(clouds, turns)
         if turns is None:
             p["local_rotmats"] = torch.eye(3).expand_as(p["local_rotmats"]).clone()

@@ -173,3 +173,36 @@ def test_roots_sides_read_each_limb_in_its_root_parts_frame():
         other = "right" if elbow_side == "left" else "left"
         assert p[3, j[f"{elbow_side}_elbow"]] > 100 * p[3, j[f"{other}_elbow"]], mode
         torch.testing.assert_close(p.sum(-1), torch.ones(4, dtype=torch.float64))
+
+
+@pytest.mark.parametrize("sides", ["torso", "roots"])
+def test_torso_shift_turns_with_the_cloud_and_moves_the_split(sides):
+    # A one-sided scan's torso centre moved by ``torso_shift``: the labels move, the pose and shape (pooled
+    # with the split the heads were trained with) do not; rotating the cloud and the shift together by a
+    # group element changes no part (equivariance holds); a shift far to the body's right puts every limb
+    # pair's mass on its left part; a zero shift is no shift.
+    torch.manual_seed(0)
+    net = ArtEqNet(**SMALL, sides=sides).double().eval()
+    pts = _cloud()
+    shift = torch.tensor([[0.05, -0.09, 0.02]], dtype=torch.float64)
+    with torch.no_grad():
+        plain, zero, moved = net(pts), net(pts, torso_shift=torch.zeros(1, 3)), net(pts, torso_shift=shift)
+    torch.testing.assert_close(zero["part_probs"], plain["part_probs"])
+    assert not torch.allclose(moved["part_probs"], plain["part_probs"])
+    for key in ("pool_weights", "global_rotmats", "betas"):
+        torch.testing.assert_close(moved[key], plain[key])
+    r = group_rotations(torch.float64)[int(torch.nonzero(element_orders() == 5)[0])]
+    with torch.no_grad():
+        turned = net(pts @ r.T, torso_shift=shift @ r.T)
+    torch.testing.assert_close(turned["part_probs"], moved["part_probs"], atol=1e-9, rtol=0)
+
+    # the torso's own left axis (the chordal mean of its predicted rotations, as the network reads it)
+    left = (
+        roma.special_procrustes(plain["global_rotmats"][:, TORSO_PARTS].sum(1))[0]
+        @ torch.tensor(LEFT_AXIS).double()
+    )
+    with torch.no_grad():
+        far_right = net(pts, torso_shift=-5.0 * left[None])["part_probs"][0]
+    pairs = far_right[:, list(LEFT_PARTS)] + far_right[:, list(RIGHT_PARTS)]
+    torch.testing.assert_close(far_right[:, list(LEFT_PARTS)], pairs, atol=1e-12, rtol=1e-9)
+    assert float(pairs.sum()) > 1.0  # the network gave the pairs mass to split

@@ -135,6 +135,43 @@ def test_the_fit_says_which_mode_it_used_and_which_parts_it_saw(anny22, tiny_fit
         tiny_fitter(view_dir=[0, 0, 1], partial=False)
 
 
+def test_a_partial_scans_network_reads_the_torso_middle_behind_its_points(anny22, tiny_fitter):
+    # The network's left / right split gets each partial scan's torso shift (away from its camera,
+    # TORSO_DEPTH_M), every draw of it; a full scan none.
+    from arteq.fit.partial import TORSO_DEPTH_M, torso_shift
+
+    kw = {"num_points": 3000, "augment": "so3", "seed": 1}
+    full = BodyScanDataset(SyntheticIDPoses(), anny22, "test_view", 1, **kw)[0]["points"].numpy()
+    side = SingleViewDataset(SyntheticIDPoses(), anny22, "test_view", 1, view="side", **kw)[0][
+        "points"
+    ].numpy()
+    fitter = tiny_fitter(view_dir=[0, 0, 2])
+    seen = []
+    forward = fitter.module.forward
+
+    def recording(points, turn=None, torso_shift=None):
+        seen.append(None if torso_shift is None else torso_shift.clone())
+        return forward(points, turn, torso_shift)
+
+    fitter.module.forward = recording
+    fitter.fit_points(side)
+    assert seen[0].shape == (fitter.net_draws, 3)
+    torch.testing.assert_close(
+        seen[0], torch.tensor([[0.0, 0.0, -TORSO_DEPTH_M]]).expand(fitter.net_draws, 3)
+    )
+    seen.clear()
+    plain = tiny_fitter(partial=False)  # full scans: no shift
+    forward = plain.module.forward
+    plain.module.forward = recording
+    plain.fit_points(full)
+    assert seen == [None]
+    np.testing.assert_allclose(
+        torso_shift(np.array([3.0, 0, 4])), [-0.6 * TORSO_DEPTH_M, 0, -0.8 * TORSO_DEPTH_M]
+    )
+    with pytest.raises(ValueError, match="view_dir"):
+        torso_shift(np.zeros(3))
+
+
 def test_partial_refinement_leaves_the_unseen_side_alone(anny22):
     """From a perturbed ground truth on a side view, the model -> scan term on the camera's vertices only
     fits better than on every vertex (which pulls the hidden side onto the visible points); with every

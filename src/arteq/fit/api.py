@@ -324,17 +324,25 @@ class FitNetwork(torch.nn.Module):
             p.requires_grad_(False)
         self.register_buffer("centroid_matrix", body_centroid_matrix(body, net.num_parts), persistent=False)
 
-    def forward(self, points: torch.Tensor, turn: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self, points: torch.Tensor, turn: torch.Tensor | None = None, torso_shift: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         """``turn [B, 3, 3]`` (optional): the network reads each cloud turned by it and its outputs are turned
         back into the cloud's frame (:func:`turn_back`): another reading of the same cloud, for a network
-        equivariant to a finite group of rotations only."""
+        equivariant to a finite group of rotations only. ``torso_shift [B, 3]`` (optional, the clouds'
+        frame): moves the torso centre that splits left from right (:class:`arteq.models.ArtEqNet`); for
+        networks without that centre it is ignored."""
         from arteq.models.placement import estimate_translation
         from arteq.models.precision import full_precision, upcast
 
+        kw = {}
+        if torso_shift is not None and getattr(self.net, "accepts_torso_shift", False):
+            shift = torso_shift.to(points.dtype)  # turned with its cloud
+            kw["torso_shift"] = shift if turn is None else (turn.to(shift.dtype) @ shift[..., None])[..., 0]
         if turn is None:
-            pred = self.net(points)
+            pred = self.net(points, **kw)
         else:
-            pred = turn_back(self.net(points @ turn.transpose(-1, -2).to(points.dtype)), turn)
+            pred = turn_back(self.net(points @ turn.transpose(-1, -2).to(points.dtype), **kw), turn)
         with full_precision(points):  # the body model (LBS) and placement in float32 at least
             posed = self.body(betas=upcast(pred["betas"]), pose=upcast(pred["local_rotmats"]))
             pred["transl"] = estimate_translation(
@@ -721,10 +729,25 @@ class Fitter:
                 }  # fmt: skip
 
     @torch.no_grad()
-    def _network(self, clouds: list[np.ndarray], turns: np.ndarray | None = None) -> dict[str, torch.Tensor]:
-        x = torch.as_tensor(np.stack(clouds), dtype=torch.float32, device=self.device)
-        turn = None if turns is None else torch.as_tensor(turns, dtype=torch.float32, device=self.device)
-        return self.module(x, turn)
+    def _network(
+        self, clouds: list[np.ndarray], turns: np.ndarray | None = None, shifts: np.ndarray | None = None
+    ) -> dict[str, torch.Tensor]:
+        def tensor(a: np.ndarray | None) -> torch.Tensor | None:
+            return None if a is None else torch.as_tensor(a, dtype=torch.float32, device=self.device)
+
+        return self.module(tensor(np.stack(clouds)), tensor(turns), tensor(shifts))
+
+    @staticmethod
+    def _torso_shifts(modes: list[dict[str, Any]], repeat: int = 1) -> np.ndarray | None:
+        """``[len(modes) * repeat, 3]``: each partial scan's :func:`arteq.fit.partial.torso_shift` from its
+        camera direction (zero for full scans) ``repeat`` times; None when no scan has one."""
+        from arteq.fit.partial import torso_shift
+
+        if not any(m["partial"] and m["view_dir"] is not None for m in modes):
+            return None
+        rows = [torso_shift(m["view_dir"]) if m["partial"] and m["view_dir"] is not None else np.zeros(3)
+                for m in modes]  # fmt: skip
+        return np.repeat(np.stack(rows), repeat, axis=0)
 
     def _turns(self, items: list[dict[str, Any]], repeat: int = 1) -> np.ndarray | None:
         """``[len(items) * repeat, 3, 3]``: each item's ``turn`` (a retry's, :meth:`_retry`; the identity for
@@ -894,8 +917,11 @@ class Fitter:
                 first = resample(src, self.net_points, rng)
             net_in.append(first)
             clouds += [first] + [resample(src, self.net_points, rng) for _ in range(k - 1)]
+        t1 = time.perf_counter()
+        modes = self._scan_modes(items, ref_in)  # before the network: partial scans' torso shifts
+        t_modes = time.perf_counter() - t1
         turns = self._turns(items, k)
-        pred = self._network(clouds) if turns is None else self._network(clouds, turns)
+        pred = self._network(clouds, turns, self._torso_shifts(modes, k))
         probs_draws = pred["part_probs"].float().cpu().numpy()  # [B * k, n, K] (waits for a GPU)
         if k > 1:  # the first draw's outputs; pose, shape and translation the mean of all draws'
             mean = mean_prediction(pred, k)
@@ -918,11 +944,11 @@ class Fitter:
 
         near = [trees[i * k].query(ref_in[i])[1] for i in range(len(items))]  # each point's first-draw point
         probs_ref = np.stack([point_probs(i, ref_in[i]) for i in range(len(items))])
-        t_net = time.perf_counter() - t0
+        t_net = time.perf_counter() - t0 - t_modes
         init = {"local_rotmats": pred["local_rotmats"], "betas": pred["betas"], "transl": pred["transl"]}
         t1 = time.perf_counter()
-        modes = self._scan_modes(items, net_in, ref_in, pred, init)
-        t_modes = time.perf_counter() - t1
+        self._place_partial(modes, net_in, pred, init)
+        t_modes += time.perf_counter() - t1
         rows, second = [], None  # the full scans that also start from the second network, and its starts
         if self.refine and self.second is not None:
             rows = [i for i, m in enumerate(modes) if not m["partial"]]
@@ -1280,14 +1306,10 @@ class Fitter:
             return bool(score <= PARTIAL_SCORE)
         return True
 
-    def _scan_modes(
-        self, items: list[dict[str, Any]], net_in: list[np.ndarray], ref_in: list[np.ndarray],
-        pred: dict[str, torch.Tensor], init: dict[str, torch.Tensor],
-    ) -> list[dict[str, Any]]:  # fmt: skip
-        """Full or partial, and why, per scan (see the class docstring); a partial scan's translation in
-        ``init`` is replaced by :func:`arteq.models.placement.align_translation`'s."""
+    def _scan_modes(self, items: list[dict[str, Any]], ref_in: list[np.ndarray]) -> list[dict[str, Any]]:
+        """Full or partial, and why, per scan, and a partial scan's camera direction (see the class
+        docstring); from the points alone, before the network."""
         from arteq.fit.partial import PARTIAL_SCORE, facing_direction, one_sidedness
-        from arteq.models.placement import align_translation
 
         modes = []
         for i, it in enumerate(items):
@@ -1316,6 +1338,16 @@ class Fitter:
                 why = f"full (detected: one-sidedness {score:.2f} <= {PARTIAL_SCORE})"
                 m.update(partial=False, reason=why)
             modes.append(m)
+        return modes
+
+    def _place_partial(
+        self, modes: list[dict[str, Any]], net_in: list[np.ndarray], pred: dict[str, torch.Tensor],
+        init: dict[str, torch.Tensor],
+    ) -> None:  # fmt: skip
+        """A partial scan's translation in ``init`` replaced by
+        :func:`arteq.models.placement.align_translation`'s (the predicted body on the seen surface)."""
+        from arteq.models.placement import align_translation
+
         rows = [i for i, m in enumerate(modes) if m["partial"]]
         if rows:
             dtype = self.body.v_template.dtype
@@ -1327,7 +1359,6 @@ class Fitter:
                                   init["transl"][rows])  # fmt: skip
             init["transl"] = init["transl"].clone()
             init["transl"][rows] = t.to(init["transl"].dtype)
-        return modes
 
     def _pick_starts(
         self, ref_in: list[np.ndarray], probs_ref: np.ndarray, init: dict[str, torch.Tensor],

@@ -35,6 +35,24 @@ import numpy as np
 
 #: One-sidedness above which a scan is taken as one camera's view (see :func:`one_sidedness`).
 PARTIAL_SCORE = 0.74
+#: :func:`torso_shift`'s depth (metres): how far behind the centroid of a one-sided view's torso points its
+#: middle lies. A camera sees half of a torso's cross-section; for an ellipse seen along a half-axis ``a`` the
+#: seen points (even in the image) lie ``pi / 4 * a`` toward the camera on average: 9 cm for ``a`` = 11.5 cm.
+#: Chosen on the first 16 scans of each view set (experiments/single_view/README.md, "The torso's middle").
+TORSO_DEPTH_M = 0.09
+
+
+def torso_shift(view_dir: np.ndarray, depth_m: float = TORSO_DEPTH_M) -> np.ndarray:
+    """``[3]``: the move from a one-sided scan's torso-point centroid to the torso's middle, away from the
+    camera (``view_dir``: unit, from the body toward the camera), for the network's left / right split
+    (``torso_shift`` of :class:`arteq.models.ArtEqNet`). Seen from the side, the torso's visible points lie
+    on the near flank, so without it the near limbs sit on the torso's middle line and half their points
+    take the far side's labels."""
+    d = np.asarray(view_dir, dtype=np.float64)
+    n = np.linalg.norm(d)
+    if d.shape != (3,) or not np.isfinite(n) or n == 0:
+        raise ValueError(f"view_dir must be a finite non-zero 3-vector, got {d!r}")
+    return -depth_m * d / n
 
 
 def sphere_directions(n: int) -> np.ndarray:

@@ -12,7 +12,7 @@ from arteq.body.skeleton import NUM_JOINTS, PARENTS, global_to_local
 from arteq.equivariant import EquivariantBackbone, group_rotations
 from arteq.models.heads import PartSegmenter, PoseHead, ShapeHead, part_geometry, pool_parts
 from arteq.models.precision import full_precision, upcast
-from arteq.models.sides import ROOTS, TORSO_PARTS, resolve_sides, side_mode, torso_frame
+from arteq.models.sides import LEFT_PARTS, ROOTS, TORSO_PARTS, resolve_sides, side_mode, torso_frame
 
 
 class ArtEqNet(nn.Module):
@@ -38,6 +38,8 @@ class ArtEqNet(nn.Module):
 
     #: ``forward`` takes precomputed FPS indices (``fps_idx``); ArtEqModule passes a batch's to such nets.
     accepts_fps_idx = True
+    #: ``forward`` takes ``torso_shift`` (the fitter passes one-sided scans' through :class:`FitNetwork`).
+    accepts_torso_shift = True
 
     def __init__(
         self,
@@ -73,6 +75,7 @@ class ArtEqNet(nn.Module):
         points: torch.Tensor,
         gt_labels: torch.Tensor | None = None,
         fps_idx: torch.Tensor | None = None,
+        torso_shift: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Predict parts, rotations and betas.
 
@@ -83,6 +86,13 @@ class ArtEqNet(nn.Module):
             fps_idx: ``[B, >=M]`` long, the backbone's FPS order precomputed (e.g. by the data workers,
                 ``data.fps_points``); ``None``: the backbone computes it (same indices, see
                 :class:`arteq.equivariant.EquivariantBackbone`).
+            torso_shift: ``[B, 3]`` metres (optional), added to the torso's centre that splits left from
+                right in the part labels returned (``seg_logits``, ``part_probs``): a one-sided cloud's torso
+                points lie on the side the camera saw, so their centroid is off the torso's middle toward
+                the camera (:func:`arteq.fit.partial.torso_shift`). The pose and shape heads still pool with
+                the split they were trained with (``pool_weights``, unchanged), so it changes the labels
+                only. It turns with the cloud: the outputs stay equivariant. ``sides: learned`` has no
+                centre and ignores it.
         Returns:
             dict with ``seg_logits [B,N,K]``, ``part_probs [B,N,K]``, ``pool_weights [B,N,K]`` (what was
             used for pooling), ``global_rotmats [B,K,3,3]``, ``rot_mean [B,K,3,3]`` (weighted chordal
@@ -103,17 +113,20 @@ class ArtEqNet(nn.Module):
             pose = self._pose(feats, points, pool_weights)
             if side_frame:
                 seg_logits = self._resolve_sides(
-                    seg_logits, points, pool_weights, pose["rotmats"][:, TORSO_PARTS]
+                    seg_logits, points, pool_weights, pose["rotmats"][:, TORSO_PARTS], torso_shift
                 )
                 part_probs = seg_logits.exp()
         else:
+            pool_weights = part_probs
             if side_frame:
                 # The torso's frame from its parts pooled with the predicted probabilities. The torso has no
                 # side and its parents are torso parts, so its rotations are the same before and after.
                 torso = self._pose(feats, points, part_probs, parts=TORSO_PARTS)["rotmats"]
-                seg_logits = self._resolve_sides(seg_logits, points, part_probs, torso)
-                part_probs = seg_logits.exp()
-            pool_weights = part_probs
+                resolved = self._resolve_sides(seg_logits, points, part_probs, torso)
+                pool_weights = resolved.exp()  # the split the pose head was trained to pool with
+                if torso_shift is not None:
+                    resolved = self._resolve_sides(seg_logits, points, part_probs, torso, torso_shift)
+                seg_logits, part_probs = resolved, resolved.exp()
             pose = self._pose(feats, points, pool_weights)
         part_feats = pose["part_feats"]
         betas = self.shape_head(part_feats.mean(dim=2))
@@ -157,19 +170,28 @@ class ArtEqNet(nn.Module):
         return {**self.pose_head(part_feats, geometry, parts=parts), "part_feats": part_feats}
 
     def _resolve_sides(
-        self, seg_logits: torch.Tensor, points: torch.Tensor, weights: torch.Tensor, torso: torch.Tensor
+        self,
+        seg_logits: torch.Tensor,
+        points: torch.Tensor,
+        weights: torch.Tensor,
+        torso: torch.Tensor,
+        shift: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """:func:`arteq.models.sides.resolve_sides` in the torso frame of ``weights`` and the torso's
         predicted rotations ``torso [B, 4, 3, 3]`` (no gradient through the frame); ``sides: roots``: each
-        limb in its root part's frame (:data:`arteq.models.sides.ROOTS`)."""
+        limb in its root part's frame (:data:`arteq.models.sides.ROOTS`). ``shift [B, 3]``: added to the
+        centre (``forward``'s ``torso_shift``)."""
         with full_precision(points):
             pts = upcast(points)
-            if self.sides == "torso":
-                centre, left = torso_frame(pts.detach(), weights.detach(), torso.detach())
-                return resolve_sides(seg_logits, pts, centre, left, self.side_scale)
+            if shift is not None:
+                shift = shift.to(device=pts.device, dtype=pts.dtype)
+            roots = {None: LEFT_PARTS} if self.sides == "torso" else ROOTS
             out = seg_logits
-            for root, lefts in ROOTS.items():
-                centre, left = torso_frame(pts.detach(), weights.detach(), torso.detach(), parts=(root,))
+            for root, lefts in roots.items():
+                parts = TORSO_PARTS if root is None else (root,)
+                centre, left = torso_frame(pts.detach(), weights.detach(), torso.detach(), parts=parts)
+                if shift is not None:
+                    centre = centre + shift
                 out = resolve_sides(out, pts, centre, left, self.side_scale, lefts=lefts)
             return out
 
