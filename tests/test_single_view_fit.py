@@ -53,6 +53,14 @@ def test_the_estimated_camera_direction_and_the_visible_vertices(anny22):
     assert np.median(d[vis]) < 0.02 < np.median(d[~vis])  # what it calls visible is what the camera saw
     with pytest.raises(ValueError, match="exactly one"):
         visible_vertices(v.numpy(), normals)
+    # the refinement's form: a batch of posed bodies, its normals computed or given (the re-match's own)
+    from arteq.fit.partial import visibility_function
+
+    visible = visibility_function(anny22.faces, [(scan["camera"].numpy(), None), None])
+    both = torch.stack([v, v + 0.1])
+    got = visible(both)
+    assert np.array_equal(got[0].numpy(), vis) and bool(got[1].all())  # a full scan's row: every vertex
+    assert torch.equal(visible(both, vertex_normals(both, anny22.faces)), got)
 
 
 def test_the_camera_direction_refined_from_the_normals(anny22):
@@ -198,7 +206,7 @@ def test_partial_refinement_leaves_the_unseen_side_alone(anny22):
         err[arm] = float((out.vertices - gt).norm(dim=-1).mean() * 100)
     assert err["partial"] < err["full"] - 0.3, err
     everything = refine(anny22, b["points"], probs, init, RefineConfig(iters=3),
-                        m2s_visible=lambda v: torch.ones(v.shape[:2], dtype=torch.bool))  # fmt: skip
+                        m2s_visible=lambda v, n: torch.ones(v.shape[:2], dtype=torch.bool))  # fmt: skip
     default = refine(anny22, b["points"], probs, init, RefineConfig(iters=3))
     torch.testing.assert_close(everything.vertices, default.vertices, rtol=0, atol=1e-5)
     d2 = torch.tensor([[1.0, 4.0, 9.0, 16.0], [1.0, 2.0, 3.0, 4.0]])

@@ -207,7 +207,8 @@ def visibility_function(
     faces, views: list[tuple[np.ndarray | None, np.ndarray | None] | None], incidence=None
 ):
     """For :func:`arteq.fit.refine.refine` (``m2s_visible``): a function of posed vertices ``[B, V, 3]``
-    (torch) giving ``[B, V]`` bool, per scan the vertices its camera sees (:func:`visible_vertices`).
+    (torch) and optionally their unit normals (``[B, V, 3]``; ``None``: computed here) giving ``[B, V]``
+    bool, per scan the vertices its camera sees (:func:`visible_vertices`).
     ``views[b]``: ``(camera, direction)`` with one of them given (the camera wins), or ``None`` for a full
     scan (every vertex). ``incidence``: the body's sparse vertex-face matrix (faster normals, see
     :func:`arteq.geometry.normals.vertex_normals`)."""
@@ -215,8 +216,10 @@ def visibility_function(
 
     from arteq.geometry.normals import vertex_normals
 
-    def visible(verts: torch.Tensor) -> torch.Tensor:
-        normals = vertex_normals(verts.detach(), faces, incidence).double().cpu().numpy()
+    def visible(verts: torch.Tensor, normals: torch.Tensor | None = None) -> torch.Tensor:
+        if normals is None:
+            normals = vertex_normals(verts.detach(), faces, incidence)
+        normals = normals.detach().double().cpu().numpy()
         v = verts.detach().double().cpu()
         out = np.ones(v.shape[:2], dtype=bool)
         for b, view in enumerate(views):

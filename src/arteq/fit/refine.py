@@ -640,15 +640,20 @@ def _rows_of_params(
 
 
 def _rows_visible(
-    m2s_visible: Callable[[torch.Tensor], torch.Tensor], alive: torch.Tensor, total: int
-) -> Callable[[torch.Tensor], torch.Tensor]:
+    m2s_visible: Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor], alive: torch.Tensor, total: int
+) -> Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor]:
     """``m2s_visible`` of a batch of ``total`` rows for the rows ``alive`` only (the others get the first
-    row's vertices: their answers are not used)."""
+    row's vertices and normals: their answers are not used)."""
 
-    def visible(verts: torch.Tensor) -> torch.Tensor:
-        full = verts[:1].expand(total, -1, -1).clone()
-        full[alive.to(verts.device)] = verts
-        return m2s_visible(full)[alive.to(verts.device)]
+    def rows(x: torch.Tensor | None) -> torch.Tensor | None:
+        if x is None:
+            return None
+        full = x[:1].expand(total, -1, -1).clone()
+        full[alive.to(x.device)] = x
+        return full
+
+    def visible(verts: torch.Tensor, normals: torch.Tensor | None) -> torch.Tensor:
+        return m2s_visible(rows(verts), rows(normals))[alive.to(verts.device)]
 
     return visible
 
@@ -677,9 +682,11 @@ def refine(
         callback: called as ``callback(iteration, vertices [B,V,3])`` before each step (for studies; after a
             ``stop``, the rows still refined).
         m2s_subset: ``[S]`` vertex indices for the model -> scan term (default: farthest points).
-        m2s_visible: for partial scans, a function of the posed vertices ``[B, V, 3]`` giving ``[B, V]``
-            bool, the vertices each scan's camera sees (e.g. :func:`arteq.fit.partial.visibility_function`):
-            the model -> scan term then uses only those of the subset. ``None``: every subset vertex.
+        m2s_visible: for partial scans, a function of the posed vertices ``[B, V, 3]`` and their unit
+            normals (``[B, V, 3]``, the ones the re-match computed, or ``None``: compute them) giving
+            ``[B, V]`` bool, the vertices each scan's camera sees (e.g.
+            :func:`arteq.fit.partial.visibility_function`): the model -> scan term then uses only those of
+            the subset. ``None``: every subset vertex.
         stop: at each iteration of ``stop_at``, called as ``stop(iteration, rows [A], vertices [A, V, 3])``
             with the batch indices of the scans still refined and their posed vertices; returns ``[A]`` bool,
             the scans to stop refining there (e.g. the worse of two starts of one scan). A stopped scan's
@@ -863,8 +870,8 @@ def refine(
                 else:
                     ok = torch.gather(allowed, 2, part_labels[idx][..., None])[..., 0]
                     w = torch.where(ok, 1.0, 0.5).to(dtype)
-                if visible_of is not None:
-                    visible = visible_of(vd).to(device)[:, m2s_subset]
+                if visible_of is not None:  # the normals of the matched surface, when it is the posed one
+                    visible = visible_of(vd, vn if offset is None else None).to(device)[:, m2s_subset]
                 if partial:  # the vertices the objective uses: the matched ones and the subset
                     sel, inv = torch.unique(torch.cat([idx.reshape(-1), m2s_subset]), return_inverse=True)
                     sel_rows = subset_rows(body, sel, nb)
