@@ -1,11 +1,12 @@
-"""Probe: the network's left / right split on single views, with the torso's centre where the network finds it
-(the centroid of the torso's points), at the true torso's middle (oracle), and moved away from the camera by
-``d`` cm along the fitter's estimated camera direction (``torso_shift``, :func:`arteq.fit.partial.torso_shift`).
+"""Probe: the network's left / right split on single views, with the torso's centre where the network finds
+it (the centroid of the torso's points), at the true torso's middle (oracle), and moved away from the camera
+by ``d`` cm along the fitter's estimated camera direction (``torso_shift``,
+:func:`arteq.fit.partial.torso_shift`).
 
-Network alone, the shipped model, the first ``--scans`` scans of each view set (run.py's), each scan as the
-fitter prepares it and one draw of 500 points; per view and arm: part accuracy (each point's label against its
-nearest scan point's true part) and the share of points given the mirror part of their true one (a left / right
-swap). Full scans are not one-sided: no shift (their rows show the oracle only).
+Network alone, the shipped model, the first ``--scans`` scans of each view set (run.py's), each scan as
+the fitter prepares it and one draw of 500 points; per view and arm: part accuracy (each point's label
+against its nearest scan point's true part) and the share of points given the mirror part of their true one
+(a left / right swap). Full scans are not one-sided: no shift (their rows show the oracle only).
 
     OMP_NUM_THREADS=2 python experiments/single_view/torso_centre_probe.py --scans 16 \\
         > experiments/single_view/torso_middle/centre_probe.txt
