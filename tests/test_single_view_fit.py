@@ -113,12 +113,16 @@ def tiny_fitter(tmp_path_factory):
                                refine=False, **kw)  # fmt: skip
 
 
-def test_the_fit_says_which_mode_it_used_and_which_parts_it_saw(anny22, tiny_fitter):
+def _full_and_side(body) -> tuple[np.ndarray, np.ndarray]:
+    """One body's full-surface cloud and its side view (3000 points each, any orientation)."""
     kw = {"num_points": 3000, "augment": "so3", "seed": 1}
-    full = BodyScanDataset(SyntheticIDPoses(), anny22, "test_view", 1, **kw)[0]["points"].numpy()
-    side = SingleViewDataset(SyntheticIDPoses(), anny22, "test_view", 1, view="side", **kw)[0][
-        "points"
-    ].numpy()
+    full = BodyScanDataset(SyntheticIDPoses(), body, "test_view", 1, **kw)[0]["points"].numpy()
+    side = SingleViewDataset(SyntheticIDPoses(), body, "test_view", 1, view="side", **kw)[0]["points"].numpy()
+    return full, side
+
+
+def test_the_fit_says_which_mode_it_used_and_which_parts_it_saw(anny22, tiny_fitter):
+    full, side = _full_and_side(anny22)
     auto = tiny_fitter()
     r_full, r_side = auto.fit_points(full), auto.fit_points(side)
     assert r_full.scan_mode == "full" and r_full.scan_mode_reason.startswith("full (detected: one-sidedness")
@@ -148,11 +152,7 @@ def test_a_partial_scans_network_reads_the_torso_middle_behind_its_points(anny22
     # TORSO_DEPTH_M), every draw of it; a full scan none.
     from arteq.fit.partial import TORSO_DEPTH_M, torso_shift
 
-    kw = {"num_points": 3000, "augment": "so3", "seed": 1}
-    full = BodyScanDataset(SyntheticIDPoses(), anny22, "test_view", 1, **kw)[0]["points"].numpy()
-    side = SingleViewDataset(SyntheticIDPoses(), anny22, "test_view", 1, view="side", **kw)[0][
-        "points"
-    ].numpy()
+    full, side = _full_and_side(anny22)
     fitter = tiny_fitter(view_dir=[0, 0, 2])
     seen = []
     forward = fitter.module.forward
