@@ -181,6 +181,12 @@ def test_kdtree_and_torch_matchers_agree(body):
     full = torch.cdist(spread[0], pts[0]).argmin(1)
     assert torch.equal(kd.model_to_scan(spread)[0], full) and torch.equal(th.model_to_scan(spread)[0], full)
     assert (full % 2).any()  # points outside the subset are matched: the whole scan is used
+    rows = torch.zeros(1, spread.shape[1], dtype=torch.bool)
+    rows[0, ::3] = True  # a partial scan's visible vertices: only those are matched, the same way
+    for m in (kd, th):
+        got = m.model_to_scan(spread, rows)[0]
+        assert torch.equal(got[rows[0]], full[rows[0]])
+    assert not kd.model_to_scan(spread, rows)[0][~rows[0]].any()  # not matched: index 0
     dist = torch.cdist(spread[0], pts[0]).amin(1).double()
     torch.testing.assert_close(kd.scan_distance(0, spread[0]), dist, atol=1e-5, rtol=0)
     torch.testing.assert_close(th.scan_distance(0, spread[0]).double(), dist, atol=1e-5, rtol=0)

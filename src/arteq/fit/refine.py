@@ -343,10 +343,22 @@ class _KDTreeMatcher:
 
         return torch.from_numpy(self._each(one, len(v))).to(verts.device)
 
-    def model_to_scan(self, verts: torch.Tensor) -> torch.Tensor:
+    def model_to_scan(self, verts: torch.Tensor, rows: torch.Tensor | None = None) -> torch.Tensor:
+        """Each of ``verts [B, S, 3]``'s nearest scan point; ``rows [B, S]`` (bool, optional): only those
+        vertices are matched (the others get index 0: a caller that masks them, as a partial scan's
+        visibility does, never reads it)."""
         v = verts.detach().cpu().double().numpy()
-        idx = self._each(lambda i: self.scan_trees[i].query(v[i])[1], len(v))
-        return torch.from_numpy(idx).to(verts.device)
+        if rows is None:
+            idx = self._each(lambda i: self.scan_trees[i].query(v[i])[1], len(v))
+            return torch.from_numpy(idx).to(verts.device)
+        use = rows.cpu().numpy()
+
+        def one(i: int) -> np.ndarray:
+            out = np.zeros(v.shape[1], dtype=np.int64)
+            out[use[i]] = self.scan_trees[i].query(v[i][use[i]])[1]
+            return out
+
+        return torch.from_numpy(self._each(one, len(v))).to(verts.device)
 
     def scan_distance(self, i: int, query: torch.Tensor) -> torch.Tensor:
         """Distance of each of ``query [M, 3]`` to scan ``i``'s nearest point."""
@@ -394,7 +406,8 @@ class _TorchMatcher:
             ]
         )
 
-    def model_to_scan(self, verts: torch.Tensor) -> torch.Tensor:
+    def model_to_scan(self, verts: torch.Tensor, rows: torch.Tensor | None = None) -> torch.Tensor:
+        """As :meth:`_KDTreeMatcher.model_to_scan` (every vertex is matched: ``rows`` saves nothing here)."""
         v = verts.detach().to(self.points.dtype)
         return torch.stack([self._nearest(v[i], self.scan[i], None) for i in range(v.shape[0])])
 
@@ -884,7 +897,7 @@ def refine(
             v_match, v_sub = _gather(verts, idx), verts[:, m2s_subset]
         if offset is not None:
             v_match, v_sub = v_match + push_match, v_sub + push_sub
-        sub_idx = matcher.model_to_scan(v_sub)
+        sub_idx = matcher.model_to_scan(v_sub, visible)  # a partial scan: its visible vertices only
         diff = (points - v_match) * 100.0
         r2 = (diff * normals).sum(-1).square() + cfg.w_p2p * diff.square().sum(-1)
         s2m = (w * geman_mcclure(r2, sigma)).sum(-1) / w.sum(-1)
