@@ -140,3 +140,44 @@ def test_arteq_fit_reads_a_depth_image_and_fits_it_as_one_camera_s_view(body_dep
     assert len(fit["parts_seen"]) + len(fit["parts_unseen"]) == 22
     # without intrinsics: an error naming the file, the batch goes on
     assert cli_main([*base, "--overwrite"]) == 1
+
+
+def test_arteq_fit_takes_a_pcd_s_camera_organized_or_from_its_viewpoint(body_depth, tmp_path):
+    """A depth camera's organized .pcd (NaN where a pixel saw nothing) is fitted as that camera's view; a
+    VIEWPOINT inside the body is an error naming the file; --no-partial ignores the file's camera."""
+    from omegaconf import OmegaConf
+
+    from arteq.fit.cli import main as cli_main
+    from conftest import compose_config
+    from fit_helpers import write_tiny_checkpoint
+    from test_io_pcd import write_pcd
+    from test_single_view_parts import TINY
+
+    net = OmegaConf.to_container(compose_config(["model=arteq", *TINY]).model.net, resolve=True)
+    ckpt = write_tiny_checkpoint(tmp_path / "tiny.ckpt", net)
+    depth, _ = body_depth
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)
+    cols = {"x": (u - INTR["cx"]) * z / F, "y": (v - INTR["cy"]) * z / F, "z": z}
+    xyz = [("x", "F", 4, 1), ("y", "F", 4, 1), ("z", "F", 4, 1)]
+    scans = tmp_path / "scans"
+    scans.mkdir()
+    write_pcd(scans / "kinect.pcd", cols, "binary_compressed", W, H, fields=xyz)
+    centre = np.nanmean(np.stack([cols[a] for a in "xyz"], -1).reshape(-1, 3), 0)
+    write_pcd(tmp_path / "inside.pcd", cols, "binary", W, H, viewpoint=(*centre, 1, 0, 0, 0), fields=xyz)
+    base = ["--out", str(tmp_path / "fits"), "--ckpt", str(ckpt), "--no-check", "--no-preview",
+            "--iters", "2", "--points", "1000", "--no-anny", "--no-progress", "--overwrite"]  # fmt: skip
+    assert cli_main([str(scans), *base]) == 0
+    npz = np.load(tmp_path / "fits" / "kinect.npz")
+    assert str(npz["scan_mode"]) == "partial" and "file's camera" in str(npz["scan_mode_reason"])
+    assert npz["view_dir"] @ np.array([0.0, 0.0, -1.0]) > 0.9  # from the body back toward the camera
+    assert cli_main([str(tmp_path / "inside.pcd"), *base]) == 1
+    row = json.loads((tmp_path / "fits" / "summary.json").read_text())["inputs"][0]
+    assert (
+        row["status"] == "error"
+        and "inside.pcd" in row["message"]
+        and "from the body's centre" in row["message"]
+    )
+    assert not (tmp_path / "fits" / "inside.npz").exists()
+    assert cli_main([str(tmp_path / "inside.pcd"), *base, "--no-partial"]) == 0
+    assert "full" in str(np.load(tmp_path / "fits" / "inside.npz")["scan_mode_reason"])

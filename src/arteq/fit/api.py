@@ -56,6 +56,11 @@ MIN_PART_SHARE = 0.002
 MIN_PART_POINTS = 10
 
 
+#: A camera position given with a scan (:meth:`Fitter.prepare`'s ``viewpoint``) nearer the body's centre than
+#: this (metres) is an error: no camera sees a body from inside it.
+MIN_CAMERA_GAP_M = 0.3
+
+
 @dataclass
 class FitResult:
     """The fit of one scan. Geometry is in the scan's frame and units unless the name says metres.
@@ -715,6 +720,14 @@ class Fitter:
             body_m = metres
         check_body_size(body_m, name, units)
         center = body_m.mean(0)
+        if viewpoint is not None:
+            gap = float(np.linalg.norm(np.asarray(viewpoint, float) * scale - center))
+            if not gap >= MIN_CAMERA_GAP_M:  # NaN too
+                where = np.round(np.asarray(viewpoint, float), 3).tolist()
+                raise ScanError(
+                    f"{name}: the file's camera position {where} lies {gap:.2f} m from the body's centre: "
+                    "not where a camera saw it from (fit it with --no-partial, or fix the file's viewpoint)"
+                )
         # measured on at most ``points`` distinct points, as many as the refinement and the check see
         sub = None
         if len(body_m) > self.points:

@@ -170,8 +170,10 @@ def _fit_batch(
             scan = read_input(f, key, max(20000, fitter.points), depth)
             if scan.kind == "depth":  # metres in the camera frame, the camera at the origin
                 item = fitter.prepare(scan.points, units="m", name=str(f), viewpoint=scan.viewpoint)
-            else:
-                item = fitter.prepare(scan.points, units=units, name=str(f))
+            else:  # a .pcd's camera (organized, or its VIEWPOINT), unless told the scans are full
+                known = scan.viewpoint is not None and fitter.partial is not False
+                camera = {"viewpoint": scan.viewpoint} if known else {}
+                item = fitter.prepare(scan.points, units=units, name=str(f), **camera)
             item["out_name"] = name
             prepared.append(item)
             rows.append(row)

@@ -2,8 +2,13 @@
 
 Formats: ``.ply`` (point cloud or mesh), ``.obj``, ``.off``, ``.stl``, ``.glb`` / ``.gltf`` (through
 trimesh; a mesh's surface is sampled, a cloud's points are used as they are), ``.xyz`` / ``.txt`` /
-``.pts`` / ``.csv`` (``x y z`` per line, extra columns ignored, ``#`` comments), ``.npy`` (``[N, 3]``)
-and ``.npz`` (key ``points`` or the one given).
+``.pts`` / ``.csv`` (``x y z`` per line, extra columns ignored, ``#`` comments), ``.pcd`` (the Point Cloud
+Library's format, as depth-camera tools write it: ``ascii``, ``binary`` and ``binary_compressed`` data; its
+``x y z`` fields), ``.npy`` (``[N, 3]``) and ``.npz`` (key ``points`` or the one given).
+
+A ``.pcd`` file can say where its camera was: an organized cloud (``HEIGHT`` > 1, one point per pixel of a
+depth image) was seen from its ``VIEWPOINT`` (the origin unless the file says otherwise), and so was any
+cloud whose ``VIEWPOINT`` is not the origin; :attr:`Scan.viewpoint` then holds that position (file units).
 
 Every failure is a :class:`ScanError` whose message starts with the file name and says what is wrong.
 Units are not converted here (see :data:`UNITS`); non-finite rows are reported, not removed (the caller
@@ -23,7 +28,8 @@ import numpy as np
 MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
 TEXT_SUFFIXES = (".xyz", ".txt", ".pts", ".csv")
 ARRAY_SUFFIXES = (".npy", ".npz")
-SUFFIXES = MESH_SUFFIXES + TEXT_SUFFIXES + ARRAY_SUFFIXES
+PCD_SUFFIXES = (".pcd",)
+SUFFIXES = MESH_SUFFIXES + TEXT_SUFFIXES + ARRAY_SUFFIXES + PCD_SUFFIXES
 #: Metres per unit.
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 _UNIT_WORDS = {"in": "inches", "ft": "feet"}
@@ -40,7 +46,8 @@ class Scan:
     """A scan as read from disk (file units, not centred).
 
     ``points [N, 3]`` float64; ``kind`` ``"cloud"`` or ``"mesh"`` (points sampled on its surface);
-    ``num_vertices`` / ``num_faces`` of the mesh (0 for a cloud).
+    ``num_vertices`` / ``num_faces`` of the mesh (0 for a cloud); ``viewpoint [3]`` the camera's position
+    when the file gives it (a ``.pcd``'s, see the module docstring; file units), else None.
     """
 
     path: Path
@@ -48,6 +55,7 @@ class Scan:
     kind: str = "cloud"
     num_vertices: int = 0
     num_faces: int = 0
+    viewpoint: np.ndarray | None = None
 
 
 def expand_inputs(inputs: list[str | Path]) -> tuple[list[Path], list[tuple[str, str]]]:
@@ -166,6 +174,145 @@ def _read_trimesh(path: Path, mesh_samples: int, seed: int) -> Scan:
     return Scan(path, _as_points(np.asarray(verts), path, "vertex list"), "cloud")
 
 
+#: PCD ``(TYPE, SIZE)`` -> numpy dtype (PCD data are little-endian).
+_PCD_DTYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("I", 1): "i1", ("I", 2): "<i2", ("I", 4): "<i4",
+               ("I", 8): "<i8", ("U", 1): "u1", ("U", 2): "<u2", ("U", 4): "<u4",
+               ("U", 8): "<u8"}  # fmt: skip
+
+
+def lzf_decompress(data: bytes, size: int) -> bytes:
+    """LZF-decompress ``data`` to exactly ``size`` bytes (``binary_compressed`` PCD data). A stream of
+    literal runs (``000LLLLL`` then ``L + 1`` bytes) and back references (``LLLooooo oooooooo``: ``L + 2``
+    bytes from ``o + 1`` back; ``L`` = 7 takes one more length byte). :class:`ValueError` when the stream
+    is corrupt or does not decode to ``size`` bytes."""
+    out = bytearray(size)
+    ip = op = 0
+    n = len(data)
+    while ip < n:
+        ctrl = data[ip]
+        ip += 1
+        if ctrl < 32:  # a literal run
+            length = ctrl + 1
+            if ip + length > n or op + length > size:
+                raise ValueError(f"a literal run of {length} bytes overruns the data at byte {ip}")
+            out[op : op + length] = data[ip : ip + length]
+            ip += length
+            op += length
+            continue
+        length = ctrl >> 5
+        if length == 7:
+            if ip >= n:
+                raise ValueError("the data end inside a back reference")
+            length += data[ip]
+            ip += 1
+        if ip >= n:
+            raise ValueError("the data end inside a back reference")
+        ref = op - ((ctrl & 0x1F) << 8) - data[ip] - 1
+        ip += 1
+        length += 2
+        if ref < 0 or op + length > size:
+            raise ValueError(f"a back reference at output byte {op} points outside the output")
+        while length:  # an overlapping reference repeats its last op - ref bytes
+            chunk = min(length, op - ref)
+            out[op : op + chunk] = out[ref : ref + chunk]
+            op, ref, length = op + chunk, ref + chunk, length - chunk
+    if op != size:
+        raise ValueError(f"decodes to {op} bytes, the header says {size}")
+    return bytes(out)
+
+
+def _read_pcd(path: Path) -> Scan:
+    """A ``.pcd`` file's ``x y z`` (and its camera: module docstring)."""
+    raw = path.read_bytes()
+    head: dict[str, list[str]] = {}
+    pos = 0
+    while "DATA" not in head:
+        end = raw.find(b"\n", pos)
+        if end < 0:
+            raise ScanError(f"{path}: not a PCD file (its header has no DATA line)")
+        line = raw[pos:end].decode("ascii", errors="replace").strip()
+        pos = end + 1
+        if line and not line.startswith("#"):
+            key, *values = line.split()
+            head[key.upper()] = values
+    for key in ("FIELDS", "SIZE", "TYPE", "WIDTH", "HEIGHT", "DATA"):
+        if not head.get(key):
+            raise ScanError(f"{path}: the PCD header has no {key} line")
+    names = [f.lower() for f in head["FIELDS"]]
+    k = len(names)
+    counts = head.get("COUNT") or ["1"] * k
+    if not (len(head["SIZE"]) == len(head["TYPE"]) == len(counts) == k):
+        raise ScanError(f"{path}: the PCD header's FIELDS, SIZE, TYPE and COUNT differ in length")
+    try:
+        sizes, counts = [int(v) for v in head["SIZE"]], [int(v) for v in counts]
+        width, height = int(head["WIDTH"][0]), int(head["HEIGHT"][0])
+        count = int(head["POINTS"][0]) if head.get("POINTS") else width * height
+        view = [float(v) for v in head.get("VIEWPOINT", ["0", "0", "0", "1", "0", "0", "0"])]
+    except ValueError:
+        raise ScanError(f"{path}: the PCD header holds a value that is not a number") from None
+    types = [t.upper() for t in head["TYPE"]]
+    if any((t, s) not in _PCD_DTYPES for t, s in zip(types, sizes)):
+        bad = [f"{t}{s}" for t, s in zip(types, sizes) if (t, s) not in _PCD_DTYPES]
+        raise ScanError(f"{path}: PCD field types {bad} are not TYPE F/I/U with SIZE 1/2/4/8")
+    if any(c < 1 for c in counts) or count < 0:
+        raise ScanError(f"{path}: the PCD header gives a COUNT below 1 or a negative POINTS")
+    missing = [a for a in "xyz" if a not in names]
+    if missing:
+        raise ScanError(
+            f"{path}: the PCD file has no {', '.join(missing)} field (its fields: {' '.join(names)})"
+        )
+    if len(view) != 7:
+        raise ScanError(
+            f"{path}: the PCD VIEWPOINT has {len(view)} values, expected 7 (tx ty tz qw qx qy qz)"
+        )
+    dtypes = [np.dtype(_PCD_DTYPES[t, s]) for t, s in zip(types, sizes)]
+    mode = head["DATA"][0].lower()
+    cols = {}
+    if mode == "ascii":
+        text = raw[pos:].decode("ascii", errors="replace").split()
+        per = sum(counts)
+        if len(text) < count * per:
+            raise ScanError(
+                f"{path}: the PCD data hold {len(text)} values, {count} points need {count * per}"
+            )
+        try:
+            table = np.asarray(text[: count * per], dtype=np.float64).reshape(count, per)
+        except ValueError:
+            raise ScanError(f"{path}: the PCD ascii data hold a value that is not a number") from None
+        starts = np.cumsum([0] + counts)
+        cols = {a: table[:, starts[names.index(a)]] for a in "xyz"}
+    elif mode == "binary":
+        record = np.dtype([(f"f{i}", d, (c,)) for i, (d, c) in enumerate(zip(dtypes, counts))])
+        if len(raw) - pos < count * record.itemsize:
+            raise ScanError(f"{path}: the PCD binary data are {len(raw) - pos} bytes, {count} points need "
+                            f"{count * record.itemsize}")  # fmt: skip
+        table = np.frombuffer(raw, dtype=record, count=count, offset=pos)
+        cols = {a: table[f"f{names.index(a)}"][:, 0] for a in "xyz"}
+    elif mode == "binary_compressed":
+        if len(raw) - pos < 8:
+            raise ScanError(f"{path}: the PCD compressed data are missing")
+        packed, size = (int(v) for v in np.frombuffer(raw, "<u4", count=2, offset=pos))
+        need = count * sum(d.itemsize * c for d, c in zip(dtypes, counts))
+        if size != need or len(raw) - pos - 8 < packed:
+            raise ScanError(f"{path}: the PCD compressed data say {packed} -> {size} bytes; the file holds "
+                            f"{len(raw) - pos - 8}, {count} points need {need}")  # fmt: skip
+        try:
+            data = lzf_decompress(raw[pos + 8 : pos + 8 + packed], size)
+        except ValueError as exc:
+            raise ScanError(f"{path}: the PCD compressed data are corrupt ({exc})") from None
+        offset = 0  # field after field: all points' values of one field, then the next field's
+        for name, d, c in zip(names, dtypes, counts):
+            if name in ("x", "y", "z"):
+                cols[name] = np.frombuffer(data, d, count=count * c, offset=offset).reshape(count, c)[:, 0]
+            offset += count * c * d.itemsize
+    else:
+        raise ScanError(f"{path}: PCD DATA {mode!r} is not ascii, binary or binary_compressed")
+    points = np.stack([cols[a] for a in "xyz"], axis=1).astype(np.float64)
+    viewpoint = np.asarray(view[:3], dtype=np.float64)
+    seen_from = height > 1 or bool(np.any(viewpoint != 0))
+    return Scan(path, points, "cloud", viewpoint=viewpoint if seen_from else None)
+
+
 def read_scan(path: str | Path, key: str | None = None, mesh_samples: int = 20000, seed: int = 0) -> Scan:
     """Read one scan file (see module docstring). Meshes are sampled uniformly by area
     (``mesh_samples`` points, seeded). Raises :class:`ScanError` on any problem."""
@@ -181,6 +328,8 @@ def read_scan(path: str | Path, key: str | None = None, mesh_samples: int = 2000
         scan = _read_trimesh(path, mesh_samples, seed)
     elif suffix in TEXT_SUFFIXES:
         scan = Scan(path, _read_text(path), "cloud")
+    elif suffix in PCD_SUFFIXES:
+        scan = _read_pcd(path)
     else:
         scan = Scan(path, _read_array(path, key), "cloud")
     if len(scan.points) == 0:
