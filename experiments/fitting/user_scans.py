@@ -198,6 +198,12 @@ class Scan:
     joints: np.ndarray | None = None
     truth: dict = field(default_factory=dict)  # stature_m, waist_circumference_m, age_years, ...
     clean_points: np.ndarray | None = None  # clutter cases: the same scan without its clutter
+    #: bodies: the true parameters (anny_allages, ``truth_betas`` components), the local rotations ``[22, 3,
+    #: 3]`` with the root's turned by the scan's rotation, and the translation that puts the body on
+    #: ``vertices`` (metres); for probes that start from the truth (stature_probe.py)
+    betas: torch.Tensor | None = None
+    pose: torch.Tensor | None = None
+    transl: np.ndarray | None = None
 
 
 class People:
@@ -286,9 +292,14 @@ def people_scans(
 
     def add(group, name, person, pose, rot=None):
         rot = random_rotation(rng) if rot is None else rot
-        v, j = people.posed(person, pose, rot, rng.uniform(-2, 2, 3))
+        off = rng.uniform(-2, 2, 3)
+        v, j = people.posed(person, pose, rot, off)
         truth = {k: person[k] for k in ("stature_m", "waist_circumference_m", "age_years")}
-        scans.append(Scan(group, name, surface_scan(v, faces, 5000, rng), v, j, truth))
+        turned = pose.clone()
+        turned[0] = torch.as_tensor(rot) @ pose[0]  # the scan's turn as the root's, about the root joint
+        transl = v[0] - people.posed(person, turned, np.eye(3), np.zeros(3))[0][0]
+        scans.append(Scan(group, name, surface_scan(v, faces, 5000, rng), v, j, truth, betas=person["betas"],
+                          pose=turned, transl=transl))  # fmt: skip
         return scans[-1], rot
 
     builds = stated_builds(people, 7000 + seed)
