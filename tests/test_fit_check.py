@@ -70,6 +70,60 @@ def test_fit_quality_tiers_on_geometry(body):
     assert describe_flags(q5) == "implausible shape (|beta| 5.0)"
 
 
+def test_surface_cells_count_surface_not_lone_points():
+    from arteq.fit.quality import surface_cells
+
+    rng = np.random.default_rng(0)
+    sheet = np.c_[rng.uniform(0, 1.0, (4000, 2)), np.zeros(4000)]  # 1 m^2 of surface
+    o = np.zeros(3)  # one grid for every cloud here
+    one = surface_cells(sheet, 0.06, o)
+    assert 250 <= one <= 330  # (1 / 0.06)^2 = 278 cells, a few more where the sheet meets a cell's edge
+    two = surface_cells(np.concatenate([sheet, sheet + [0, 0, 0.5]]), 0.06, o)
+    assert abs(two / one - 2.0) < 0.02
+    strays = rng.uniform(-5, 5, (50, 3)) + [0, 0, 10]  # far from the sheet and from each other
+    assert surface_cells(np.concatenate([sheet, strays]), 0.06, o) == one
+    assert surface_cells(np.zeros((0, 3)), 0.06) == 0
+    # against the definition, cell by cell, on clouds of every density
+    import itertools
+
+    for n in (10, 300, 3000):
+        cloud = rng.normal(size=(n, 3)) * [0.2, 0.8, 0.15]
+        occ = set(map(tuple, np.floor((cloud - o) / 0.06).astype(int)))
+        steps = [s for s in itertools.product((-1, 0, 1), repeat=3) if any(s)]
+        ref = sum(any((c[0] + a, c[1] + b, c[2] + d) in occ for a, b, d in steps) for c in occ)
+        assert surface_cells(cloud, 0.06, o) == ref
+
+
+def test_extra_surface_refuses_a_second_person_against_the_body_not_a_person_on_a_stool(body):
+    """Two people touching, one of them fitted and partly covered (so neither ``no_body_surface`` nor
+    ``unexplained_points`` holds, as for the suite's two people 0.8 m apart fitted astride both): refused as
+    ``extra_surface``. A person on a stool the clean-up keeps, fitted well: most points explained, not
+    refused. The body alone: a ratio near 1."""
+    from arteq.fit.demo import synthetic_scan
+
+    a = synthetic_scan(body, "test_id", 3, 5000, offset=0.0, rotate=False)
+    v, p, parts = a["vertices"], a["points"], body.part_labels.numpy()
+    q = _fit(p, v, a["betas"], parts)
+    assert 0.9 < q["surface_ratio"] < 1.1 and "extra_surface" not in q["flags"], q
+    side = v[:, 0].max() - v[:, 0].min()
+    b = synthetic_scan(body, "test_id", 5, 5000, offset=0.0, rotate=False)["points"]
+    b = b - [b[:, 0].min() - v[:, 0].max() - 0.02, 0, 0]  # the second person 2 cm from the first's side
+    up = np.argmax(v.max(0) - v.min(0))  # the body's long axis
+    unseen = p[:, up] > np.percentile(p[:, up], 80)  # the fitted person's top fifth not scanned
+    q2 = _fit(np.concatenate([p[~unseen], b]), v, a["betas"], parts)
+    assert 0.33 < q2["inlier_frac"] < 0.55 and q2["coverage"] < 0.85, q2  # the old rules pass it
+    assert q2["surface_ratio"] > 1.4 and "extra_surface" in q2["flags"], q2
+    assert verdict(q2["flags"]) == "not_single_body" and side > 0.3
+    assert "times the fitted body's surface" in describe_flags(q2, ["extra_surface"])
+    rng = np.random.default_rng(1)
+    stool = trimesh.creation.box(extents=(0.45, 0.45, 0.45))
+    seat = np.asarray(stool.sample(1500, seed=1)) + rng.normal(0, 0.005, (1500, 3))
+    hips = v[parts == 0].mean(0)
+    seat = seat + hips - [0, 0.225 + 0.1, 0]  # under the pelvis, its top at the seat
+    q3 = _fit(np.concatenate([p, seat]), v, a["betas"], parts)
+    assert q3["inlier_frac"] > 0.55 and "extra_surface" not in q3["flags"], q3
+
+
 def _tube(kind: str, rng: np.random.Generator) -> np.ndarray:
     """5000 points on a line, a pole, a capsule or a flat-ended cylinder about 1.7 m long, 3 mm noise."""
     if kind == "line":

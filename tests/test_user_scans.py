@@ -42,6 +42,24 @@ def test_surface_scan_lies_on_the_mesh_within_the_noise_and_is_not_uniform():
     assert cKDTree(pts).query(pts, k=2)[0][:, 1].max() < 0.2
 
 
+def test_curved_scan_lies_on_the_smooth_surface_through_the_vertices_not_inside_the_faces():
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.1)  # 320 faces: edges ~2 cm, as a limb's
+    v, f = np.asarray(sphere.vertices, dtype=np.float64), np.asarray(sphere.faces, dtype=np.int64)
+    flat = np.linalg.norm(us.surface_scan(v, f, 20000, np.random.default_rng(0), noise=0.0), axis=1)
+    rng = np.random.default_rng(0)
+    curved = np.linalg.norm(us.surface_scan(v, f, 20000, rng, noise=0.0, curved=True), axis=1)
+    assert flat.mean() < 0.0992  # the faces: inside the sphere by the sag of their chords
+    assert abs(curved.mean() - 0.1) < 0.5 * abs(flat.mean() - 0.1)  # the curved surface: twice as near it
+    assert np.all(curved >= flat - 1e-12)  # pushed out, never in, on a convex body
+    assert np.all(curved <= 0.1 + 2e-3)
+    # the same draws: only the surface differs (a suite made with it keeps its bodies, poses and noise)
+    n1 = us.surface_scan(v, f, 100, np.random.default_rng(3), noise=0.005)
+    n2 = us.surface_scan(v, f, 100, np.random.default_rng(3), noise=0.005, curved=True)
+    assert 0 < np.abs(n1 - n2).max() < 3e-3
+
+
 def test_pose_templates_mirror_left_to_right_and_jitter():
     from arteq.body.skeleton import JOINT_NAMES
 

@@ -130,9 +130,13 @@ def z_up_heading(rng: np.random.Generator) -> np.ndarray:
 
 
 def surface_scan(verts: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator, noise: float = 0.005,
-                 contrast: float = 0.8, wavelength: float = 0.5) -> np.ndarray:  # fmt: skip
+                 contrast: float = 0.8, wavelength: float = 0.5, curved: bool = False) -> np.ndarray:  # fmt: skip
     """``n`` points on a mesh, area-weighted times a smooth random density (``exp(contrast * f)``, ``f``
-    a sum of four plane waves of ``wavelength`` metres in the scan's frame), with Gaussian ``noise``."""
+    a sum of four plane waves of ``wavelength`` metres in the scan's frame), with Gaussian ``noise``.
+
+    ``curved``: on the smooth surface through the mesh's vertices (Phong tessellation, shape factor 3/4, with
+    area-weighted vertex normals) instead of its flat faces, which lie inside a body's surface where it
+    curves out, as a real body's skin is not: the scan a scanner makes of the body the mesh stands for."""
     tri = verts[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     dirs = rng.normal(size=(4, 3))
@@ -146,6 +150,16 @@ def surface_scan(verts: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Ge
     u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
     t = tri[face]
     pts = t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0])
+    if curved:
+        fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # area-weighted face normals
+        vn = np.zeros_like(verts)
+        for k in range(3):
+            np.add.at(vn, faces[:, k], fn)
+        vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
+        bary = np.stack([1 - u - v, u, v], 1)
+        nrm = vn[faces[face]]  # [n, 3 corners, 3]
+        proj = pts[:, None] - ((pts[:, None] - t) * nrm).sum(-1, keepdims=True) * nrm  # onto each tangent plane
+        pts = 0.25 * pts + 0.75 * (bary[..., None] * proj).sum(1)
     return pts + rng.normal(0.0, noise, pts.shape)
 
 
@@ -279,9 +293,11 @@ def stated_builds(people: People, seed: int) -> dict[str, torch.Tensor]:
 
 
 def people_scans(
-    seed: int = 0, n_children: int = 8, n_adults: int = 4, n_clutter: int = 3, truth_betas: int = TRUTH_BETAS
+    seed: int = 0, n_children: int = 8, n_adults: int = 4, n_clutter: int = 3, truth_betas: int = TRUTH_BETAS,
+    curved: bool = False,
 ) -> list[Scan]:
-    """The ``people`` suite's labelled scans (see the module docstring; ``truth_betas``: :class:`People`)."""
+    """The ``people`` suite's labelled scans (see the module docstring; ``truth_betas``: :class:`People`;
+    ``curved``: :func:`surface_scan`'s, the same bodies, poses, densities and noise on the smooth surface)."""
     from check_calibration import ACROBATIC
 
     people = People(truth_betas)
@@ -298,7 +314,7 @@ def people_scans(
         turned = pose.clone()
         turned[0] = torch.as_tensor(rot) @ pose[0]  # the scan's turn as the root's, about the root joint
         transl = v[0] - people.posed(person, turned, np.eye(3), np.zeros(3))[0][0]
-        scans.append(Scan(group, name, surface_scan(v, faces, 5000, rng), v, j, truth, betas=person["betas"],
+        scans.append(Scan(group, name, surface_scan(v, faces, 5000, rng, curved=curved), v, j, truth, betas=person["betas"],
                           pose=turned, transl=transl))  # fmt: skip
         return scans[-1], rot
 
@@ -350,7 +366,7 @@ def people_scans(
         for m in range(2):
             pose = pose_from_template(EVERYDAY[everyday[(2 * k + m) % len(everyday)]], rng)
             v, _ = people.posed(people.person(pair_phen[2 * k + m]), pose, rot, off + m * gap * side)
-            pts.append(surface_scan(v, faces, 2500, rng))
+            pts.append(surface_scan(v, faces, 2500, rng, curved=curved))
         scans.append(Scan("non-bodies", f"two people {gap} m apart", np.concatenate(pts)))
     return scans
 
@@ -386,6 +402,7 @@ def fit_scan(fitter, scan: Scan, other=None) -> dict:
     rec = {"group": scan.group, "name": scan.name, "status": r.status,
            "reason": r.uncertain_reason or r.message, "fit_s": r.timings.get("total"),
            "anny_s": r.timings.get("anny"), "wall_s": wall, "body": scan.vertices is not None}  # fmt: skip
+    rec.update({k: (r.quality or {}).get(k) for k in ("inlier_frac", "coverage", "surface_ratio")})
     if scan.vertices is not None and r.vertices is not None:
         v = r.vertices.astype(np.float64)
         rec["v2v_cm"] = float(np.linalg.norm(v - scan.vertices, axis=1).mean() * 100)
@@ -538,7 +555,7 @@ def run_people(a) -> None:
     from arteq.fit import Fitter
 
     t0 = time.perf_counter()
-    scans = people_scans(a.seed, truth_betas=a.truth_betas)
+    scans = people_scans(a.seed, truth_betas=a.truth_betas, curved=a.curved)
     t_make = time.perf_counter() - t0
     if a.export:
         out = Path(a.export)
@@ -701,6 +718,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--net-draws", type=int, default=None, help="people: Fitter(net_draws=...)")
     ap.add_argument("--retries", type=int, default=None, help="people: Fitter(retries=...)")
     ap.add_argument("--retry-above", type=float, default=None, help="people: Fitter(retry_above_cm=...)")
+    ap.add_argument("--curved", action="store_true",
+                    help="people: scan the smooth surface through each mesh's vertices, not its flat faces")
     ap.add_argument("--no-second-start", action="store_true", help="people: Fitter(second_start=False)")
     ap.add_argument(
         "--truth-betas",

@@ -36,6 +36,15 @@ Values (``fit_quality``) and the reason codes they set (thresholds: :class:`Qual
   poles, cylinders and capsules 1.00 (experiments/fitting/tube_check.md). One camera's view of a cylinder
   or capsule thicker than a pole is not caught.
 
+- ``surface_ratio``: how much surface the scan holds against the fitted body: occupied cells of a
+  ``surface_cell_cm`` grid (cells with an occupied neighbour: a lone stray point is not surface), the
+  scan's over the fitted mesh's vertices'. Refused above ``max_surface_ratio`` when the fit also explains
+  fewer than ``unexplained[0]`` of the points (``extra_surface``: a second person touching the body, so that
+  clutter removal keeps it, and the fit on one of them or astride both). A lost fit covers as many cells as
+  a good one; a person on a stool, fitted well, explains most of the points and is not refused. Ratios
+  against the true meshes and through the fitter: experiments/fitting/surface_ratio.md. The cell grows
+  with a noisy scan's noise (``noise_cell``), which thickens its surface.
+
 Clutter removal (:mod:`arteq.fit.clean`) adds the refusing flag ``second_body`` when the scan holds a
 second body-sized cluster apart from the fitted one (two people). The crossed-limb step
 (:mod:`arteq.fit.crossing`) adds ``refitted`` (uncertain) to a fit it replaced after the check had doubted
@@ -49,7 +58,9 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Reason codes that refuse a fit (the scan is not one body); every other code makes it uncertain.
-REFUSE_FLAGS = ("no_body_surface", "unexplained_points", "wrong_size", "second_body", "sphere", "tube")
+REFUSE_FLAGS = (
+    "no_body_surface", "unexplained_points", "wrong_size", "second_body", "extra_surface", "sphere", "tube"
+)  # fmt: skip
 
 
 @dataclass
@@ -79,6 +90,10 @@ class QualityThresholds:
     #: poles, cylinders and capsules 1.00 (experiments/fitting/tube_check.md)
     max_tube_frac: float = 0.85
     tube_tol_cm: float = 3.0
+    #: refused: the scan's surface over the fitted body's (:func:`surface_cells`) above this
+    max_surface_ratio: float = 1.4
+    surface_cell_cm: float = 6.0
+    noise_cell: float = 6.0  # the cell at least this many times a measured noise
     #: a noisy or sparse scan (:mod:`arteq.fit.conditions`): above ``noise_from_mm`` of noise, the inlier
     #: distance at least ``noise_inlier`` times the noise and the inlier RMS limit at least ``noise_rmse``
     #: times it; the covering radius at least ``spacing_cover`` times its sparse regions' spacing
@@ -143,6 +158,11 @@ def fit_quality(
     max_beta = float(np.abs(betas).max()) if len(betas) else 0.0
     sphere_frac, sphere_r = sphere_fit(points, th.sphere_tol_cm / 100)
     tube_frac, tube_r = tube_fit(points, th.tube_tol_cm / 100)
+    cell = th.surface_cell_cm / 100
+    if conditions and conditions.get("noise_m") is not None:
+        cell = max(cell, th.noise_cell * conditions["noise_m"])
+    origin = vertices.min(0)  # one grid for both
+    surface_ratio = surface_cells(points, cell, origin) / max(1, surface_cells(vertices, cell, origin))
     values = {
         "inlier_frac": inlier_frac,
         "rmse_in_cm": rmse,
@@ -159,9 +179,34 @@ def fit_quality(
         "sphere_radius_m": sphere_r,
         "tube_frac": tube_frac,
         "tube_radius_m": tube_r,
+        "surface_ratio": surface_ratio,
+        "surface_cell_cm": cell * 100,
     }
     values["flags"] = quality_flags(values, th)
     return values
+
+
+def surface_cells(points: np.ndarray, cell: float, origin: np.ndarray | None = None) -> int:
+    """Cells of a ``cell``-metre grid (corner at ``origin``) that hold a point of ``points [N, 3]`` and have
+    an occupied neighbour among their 26: the surface a cloud or a mesh's vertices occupy, a lone stray
+    point not counted."""
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) == 0:
+        return 0
+    o = p.min(0) if origin is None else np.asarray(origin, dtype=np.float64)
+    ijk = np.floor((p - o) / cell).astype(np.int64)
+    ijk -= ijk.min(0) - 1  # non-negative, with a margin of one cell on every side
+    dims = ijk.max(0) + 2
+    if float(np.prod(dims.astype(np.float64))) > 2.0**62:  # a cloud far too large for its cells
+        return len(np.unique(ijk, axis=0))  # (the extent check refuses it)
+    keys = np.unique(np.ravel_multi_index(ijk.T, dims))  # sorted flat indices of the occupied cells
+    stride = np.array([dims[1] * dims[2], dims[2], 1])
+    near = np.zeros(len(keys), dtype=bool)
+    for d in np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij")).reshape(3, -1).T:
+        if d.any():  # the margin keeps every neighbour's flat index inside the grid, without wrapping
+            k = keys + int(d @ stride)
+            near |= keys[np.minimum(np.searchsorted(keys, k), len(keys) - 1)] == k
+    return int(near.sum())
 
 
 def sphere_fit(points: np.ndarray, tol_m: float = 0.03) -> tuple[float, float]:
@@ -231,6 +276,10 @@ def quality_flags(q: dict, thresholds: QualityThresholds | None = None) -> list[
         flags.append("sphere")
     elif q.get("tube_frac", 0.0) >= th.max_tube_frac:  # a sphere lies on a tube too: one reason suffices
         flags.append("tube")
+    explained = "no_body_surface" in flags or "unexplained_points" in flags  # one reason suffices
+    extra = q.get("surface_ratio", 0.0) > th.max_surface_ratio  # records written before the value: none
+    if extra and inl < th.unexplained[0] and not explained:
+        flags.append("extra_surface")
     return flags
 
 
@@ -270,6 +319,10 @@ def describe_flags(q: dict, flags: list[str] | None = None) -> str:
             f"{q.get('tube_frac', 0.0):.0%} of the points lie on a tube of radius "
             f"{q.get('tube_radius_m', 0.0):.2f} m around one axis (a pole, a cylinder: a body's limbs and "
             "head lie off it)"
+        ),
+        "extra_surface": (
+            f"the scan holds {q.get('surface_ratio', 0.0):.1f} times the fitted body's surface: a second "
+            "person or a large object against it"
         ),
         "second_body": (
             f"a second body-sized object beside it ({q.get('second_body_points', 0)} points, "
