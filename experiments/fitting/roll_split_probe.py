@@ -10,7 +10,7 @@ mean distance of the scan points nearest it to the branch (cm, halved). Printed:
 three best-scoring candidates and the lowest V2V of any candidate.
 """
 import sys, numpy as np, torch, roma
-sys.path.insert(0, "/work/main/experiments/fitting")
+sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
 import user_scans as us
 from arteq.fit import Fitter
 from arteq.body.skeleton import JOINT_NAMES, PARENTS
