@@ -151,11 +151,9 @@ def surface_scan(verts: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Ge
     t = tri[face]
     pts = t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0])
     if curved:
-        fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # area-weighted face normals
-        vn = np.zeros_like(verts)
-        for k in range(3):
-            np.add.at(vn, faces[:, k], fn)
-        vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
+        from arteq.geometry.normals import vertex_normals
+
+        vn = vertex_normals(torch.as_tensor(verts)[None], torch.as_tensor(faces))[0].numpy()
         bary = np.stack([1 - u - v, u, v], 1)
         nrm = vn[faces[face]]  # [n, 3 corners, 3]
         proj = pts[:, None] - ((pts[:, None] - t) * nrm).sum(-1, keepdims=True) * nrm  # onto each tangent plane

@@ -201,21 +201,19 @@ def surface_cells(points: np.ndarray, cell: float, origin: np.ndarray | None = N
         return len(np.unique(ijk, axis=0))  # (the extent check refuses it)
     flat = np.ravel_multi_index(ijk.T, dims)
     size = int(np.prod(dims))
-    if size <= 4_000_000:  # a body's grid (about 40^3 cells): a dense occupancy array
+    dense = size <= 4_000_000  # a body's grid (about 40^3 cells): an occupancy array; else sorted indices
+    if dense:
         grid = np.zeros(size, dtype=bool)
         grid[flat] = True
         keys = np.flatnonzero(grid)
-    else:  # a cloud spread wide: sorted indices, looked up by bisection
+    else:
         keys = np.unique(flat)
     stride = np.array([dims[1] * dims[2], dims[2], 1])
     near = np.zeros(len(keys), dtype=bool)
     for d in np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij")).reshape(3, -1).T:
         if d.any():  # the margin keeps every neighbour's flat index inside the grid, without wrapping
             k = keys + int(d @ stride)
-            if size <= 4_000_000:
-                near |= grid[k]
-            else:
-                near |= keys[np.minimum(np.searchsorted(keys, k), len(keys) - 1)] == k
+            near |= grid[k] if dense else keys[np.minimum(np.searchsorted(keys, k), len(keys) - 1)] == k
     return int(near.sum())
 
 
