@@ -248,3 +248,67 @@ def test_calibration_script_set_and_table():
     lines = [line.split(" | ") for line in cal.table(recs).splitlines()[2:] if line.startswith("| all ")]
     # columns: group, scans, usable, before FR, before FA, after FR, after FA, ...
     assert lines[0][1:7] == ["4", "2", "1", "2", "0", "2"], lines
+
+
+def test_off_fit_group_against_a_reference():
+    """The largest linked group of off-fit points, against a breadth-first search over all pairs."""
+    from arteq.fit.quality import off_fit_group
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 40, 300):
+        pts = rng.uniform(0, 0.5, (n, 3))
+        dist = rng.uniform(0, 0.06, n)
+        far = pts[dist > 0.03]
+        seen, best = set(), []
+        for i in range(len(far)):
+            if i in seen:
+                continue
+            todo, comp = [i], []
+            seen.add(i)
+            while todo:
+                k = todo.pop()
+                comp.append(k)
+                for m in np.flatnonzero(np.linalg.norm(far - far[k], axis=1) < 0.08):
+                    if int(m) not in seen:
+                        seen.add(int(m))
+                        todo.append(int(m))
+            best = max(best, comp, key=len)
+        size, extent = off_fit_group(pts, dist, 0.03, 0.08)
+        assert size == len(best)
+        ref = np.linalg.norm(far[best].max(0) - far[best].min(0)) if len(best) > 1 else 0.0
+        assert extent == pytest.approx(ref)
+
+
+def test_off_fit_limb_doubts_a_fit_with_a_forearm_elsewhere_not_stray_points(body):
+    """A fit whose left forearm and hand are turned 120 deg about the elbow, away from their points: those
+    points lie off the fit together, a limb's length across (``off_fit_limb``, uncertain, not refused). The
+    body fitted exactly, and the same with 3 % stray points scattered round it: no such group."""
+    import roma
+    import torch
+
+    from arteq.body.skeleton import JOINT_NAMES
+    from arteq.fit.demo import synthetic_scan
+    from arteq.fit.refine import branch_parts
+
+    s = synthetic_scan(body, "test_id", 3, 5000, offset=0.0, rotate=False)
+    v, p, parts = s["vertices"], s["points"], body.part_labels.numpy()
+    q = _fit(p, v, s["betas"], parts)
+    assert q["off_group_frac"] < 0.005 and "off_fit_limb" not in q["flags"], q
+    rng = np.random.default_rng(0)
+    strays = rng.uniform(v.min(0) - 0.5, v.max(0) + 0.5, (150, 3))
+    q2 = _fit(np.concatenate([p, strays]), v, s["betas"], parts)
+    assert q2["off_group_frac"] < 0.005 and "off_fit_limb" not in q2["flags"], q2
+    with torch.no_grad():
+        betas, pose = torch.as_tensor(s["betas"])[None].float(), torch.as_tensor(s["pose"])[None].float()
+        out = body(betas=betas, pose=pose)
+    joints = out.joints[0].double().numpy() + s["transl"]
+    el, wr = JOINT_NAMES.index("left_elbow"), JOINT_NAMES.index("left_wrist")
+    axis = np.cross(joints[wr] - joints[el], [0.0, 0.0, 1.0])
+    turn = roma.rotvec_to_rotmat(torch.as_tensor(axis / np.linalg.norm(axis) * np.radians(120))).numpy()
+    moved = np.isin(parts, branch_parts(el))
+    wrong = v.copy()
+    wrong[moved] = (v[moved] - joints[el]) @ turn.T + joints[el]
+    q3 = _fit(p, wrong, s["betas"], parts)
+    assert q3["off_group_cm"] > 20 and "off_fit_limb" in q3["flags"], q3
+    assert verdict(q3["flags"]) == "uncertain"
+    assert "cm across, lie off the fit together" in describe_flags(q3, ["off_fit_limb"])

@@ -235,7 +235,8 @@ def main() -> None:
             rec = {"body": who, "defect": kind, "points": len(pts), "status": r.status,
                    "reason": r.uncertain_reason or r.message, "fit_s": r.timings.get("total"),
                    "clothing_s": r.timings.get("clothing")}  # fmt: skip
-            rec.update({k: (r.quality or {}).get(k) for k in ("inlier_frac", "coverage", "surface_ratio")})
+            rec.update({k: (r.quality or {}).get(k) for k in ("inlier_frac", "coverage", "surface_ratio",
+                                                              "off_group_frac", "off_group_cm")})
             if r.vertices is not None:
                 rec["v2v_cm"] = float(np.linalg.norm(r.vertices - v, axis=1).mean() * 100)
                 if kind == "clean":

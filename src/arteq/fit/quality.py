@@ -44,6 +44,13 @@ Values (``fit_quality``) and the reason codes they set (thresholds: :class:`Qual
   a good one; a person on a stool, fitted well, explains most of the points and is not refused. Ratios
   against the true meshes and through the fitter: experiments/fitting/surface_ratio.md. The cell grows
   with a noisy scan's noise (``noise_cell``), which thickens its surface.
+- ``off_group_frac``, ``off_group_cm``: the largest group of scan points that lie off the fit together
+  (:func:`off_fit_group`: farther than ``off_fit_cm`` from it, linked within ``off_link_cm``), as a share
+  of the points and its size. Uncertain from ``max_off_group_frac`` and ``max_off_group_cm`` up
+  (``off_fit_limb``): a limb's points that the fitted limb is not on. The inlier share alone passes such
+  a fit when the limb is a small part of the points (a child's forearm and hand: 3 %), and the coverage
+  passes it when the fitted limb lies on other points (an arm overhead on the other arm). Scattered stray
+  points form no group. Measured in experiments/fitting/off_fit.md.
 
 Clutter removal (:mod:`arteq.fit.clean`) adds the refusing flag ``second_body`` when the scan holds a
 second body-sized cluster apart from the fitted one (two people). The crossed-limb step
@@ -102,6 +109,14 @@ class QualityThresholds:
     noise_inlier: float = 2.5
     noise_rmse: float = 1.5
     spacing_cover: float = 0.7
+    #: uncertain: the largest group of scan points off the fit (:func:`off_fit_group`: points farther than
+    #: ``off_fit_cm``, or twice the inlier distance, linked within ``off_link_cm``, or 1.5 times a sparse
+    #: scan's spacing) holds at least ``max_off_group_frac`` of the points and spans ``max_off_group_cm``
+    #: (``off_fit_limb``: a limb's points that the fitted limb is not on; experiments/fitting/off_fit.md)
+    off_fit_cm: float = 4.0
+    off_link_cm: float = 4.0
+    max_off_group_frac: float = 0.01
+    max_off_group_cm: float = 20.0
 
 
 def fit_quality(
@@ -163,6 +178,10 @@ def fit_quality(
         cell = max(cell, th.noise_cell * conditions["noise_m"])
     origin = vertices.min(0)  # one grid for both
     surface_ratio = surface_cells(points, cell, origin) / max(1, surface_cells(vertices, cell, origin))
+    link_cm = th.off_link_cm
+    if conditions and conditions.get("spacing_m") is not None:
+        link_cm = max(link_cm, 1.5 * conditions["spacing_m"] * 100)
+    group, group_m = off_fit_group(points, d, max(th.off_fit_cm, 2 * inlier_cm) / 100, link_cm / 100)
     values = {
         "inlier_frac": inlier_frac,
         "rmse_in_cm": rmse,
@@ -181,9 +200,29 @@ def fit_quality(
         "tube_radius_m": tube_r,
         "surface_ratio": surface_ratio,
         "surface_cell_cm": cell * 100,
+        "off_group_frac": group / max(1, len(points)),
+        "off_group_cm": group_m * 100,
     }
     values["flags"] = quality_flags(values, th)
     return values
+
+
+def off_fit_group(points: np.ndarray, dist: np.ndarray, far_m: float, link_m: float) -> tuple[int, float]:
+    """``(points, extent m)`` of the largest group of ``points [N, 3]`` farther than ``far_m`` from the fit
+    (``dist [N]``: each point's distance to it), two points in one group when a chain of such points links
+    them with steps under ``link_m``; the extent is the group's bounding-box diagonal."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    far = np.asarray(points, dtype=np.float64)[np.asarray(dist) > far_m]
+    if len(far) < 2:
+        return len(far), 0.0
+    pairs = cKDTree(far).query_pairs(link_m, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(far), len(far)))
+    labels = connected_components(graph, directed=False)[1]
+    group = far[labels == np.bincount(labels).argmax()]
+    return len(group), float(np.linalg.norm(group.max(0) - group.min(0)))
 
 
 def surface_cells(points: np.ndarray, cell: float, origin: np.ndarray | None = None) -> int:
@@ -288,6 +327,9 @@ def quality_flags(q: dict, thresholds: QualityThresholds | None = None) -> list[
     extra = q.get("surface_ratio", 0.0) > th.max_surface_ratio  # records written before the value: none
     if extra and inl < th.unexplained[0] and not explained:
         flags.append("extra_surface")
+    group = q.get("off_group_frac", 0.0) >= th.max_off_group_frac  # records written before the value: none
+    if group and q.get("off_group_cm", 0.0) >= th.max_off_group_cm:
+        flags.append("off_fit_limb")
     return flags
 
 
@@ -331,6 +373,10 @@ def describe_flags(q: dict, flags: list[str] | None = None) -> str:
         "extra_surface": (
             f"the scan holds {q.get('surface_ratio', 0.0):.1f} times the fitted body's surface: a second "
             "person or a large object against it"
+        ),
+        "off_fit_limb": (
+            f"{q.get('off_group_frac', 0.0):.1%} of the points, {q.get('off_group_cm', 0.0):.0f} cm across, "
+            "lie off the fit together: a limb fitted elsewhere"
         ),
         "second_body": (
             f"a second body-sized object beside it ({q.get('second_body_points', 0)} points, "
