@@ -152,6 +152,20 @@ class CleanResult:
         return ("removed " + ", ".join(parts)) if parts else ""
 
 
+def linked_groups(points: np.ndarray, radius: float, tree=None) -> np.ndarray:
+    """``[N]`` group labels of ``points [N, 3]``: two points share a group when a chain of points links them
+    with steps shorter than ``radius`` (``tree``: a ``cKDTree`` of ``points`` already built)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = (tree or cKDTree(points)).query_pairs(radius, output_type="ndarray")
+    graph = coo_matrix(
+        (np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2
+    )
+    return connected_components(graph, directed=False)[1]
+
+
 def _spacing(tree, pts: np.ndarray, k: int = 4) -> float:
     d, _ = tree.query(pts, k=k + 1)
     return float(np.median(d[:, 1:].mean(1)))
@@ -437,8 +451,6 @@ def _one_sided_parts(
 def _clean_subset(
     pts: np.ndarray, cfg: CleanConfig, rng: np.random.Generator, viewpoint: np.ndarray | None = None
 ) -> CleanResult:
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
     n = len(pts)
@@ -471,11 +483,7 @@ def _clean_subset(
         P = pts[alive]
         tree = cKDTree(P)
         radius = float(np.clip(cfg.cluster_factor * _spacing(tree, P, 4), *cfg.cluster_radius_m))
-        pairs = tree.query_pairs(radius, output_type="ndarray")
-        graph = coo_matrix(
-            (np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(P),) * 2
-        )
-        _, comp = connected_components(graph, directed=False)
+        comp = linked_groups(P, radius, tree)
         sizes = np.bincount(comp)
         main = int(np.argmax(sizes))
         body = comp == main

@@ -210,17 +210,14 @@ def fit_quality(
 def off_fit_group(points: np.ndarray, dist: np.ndarray, far_m: float, link_m: float) -> tuple[int, float]:
     """``(points, extent m)`` of the largest group of ``points [N, 3]`` farther than ``far_m`` from the fit
     (``dist [N]``: each point's distance to it), two points in one group when a chain of such points links
-    them with steps under ``link_m``; the extent is the group's bounding-box diagonal."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
+    them with steps under ``link_m`` (:func:`arteq.fit.clean.linked_groups`); the extent is the group's
+    bounding-box diagonal."""
+    from arteq.fit.clean import linked_groups
 
     far = np.asarray(points, dtype=np.float64)[np.asarray(dist) > far_m]
     if len(far) < 2:
         return len(far), 0.0
-    pairs = cKDTree(far).query_pairs(link_m, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(far), len(far)))
-    labels = connected_components(graph, directed=False)[1]
+    labels = linked_groups(far, link_m)
     group = far[labels == np.bincount(labels).argmax()]
     return len(group), float(np.linalg.norm(group.max(0) - group.min(0)))
 
