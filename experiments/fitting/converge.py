@@ -85,10 +85,7 @@ def main(argv: list[str] | None = None) -> None:
         cells = " | ".join(us._f(r[i].get("v2v_cm")) for r in records.values())
         lines.append(f"| {s.name} | {cells} |")
     text = "\n".join(lines) + "\n"
-    print("\n" + text)
-    if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.out).write_text(text)
+    us.report(text, a.out)
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         out = {"settings": settings, "records": records}

@@ -99,10 +99,7 @@ def main(argv: list[str] | None = None) -> None:
     ]  # fmt: skip
     lines += [f"| {r['seed']} | {r['name']} | {r['fit']:+.2f} | {r['net']:+.2f} | {r['v2v']:.2f} |" for r in rows]
     text = "\n".join(lines) + "\n"
-    print("\n" + text)
-    if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.out).write_text(text)
+    us.report(text, a.out)
 
 
 if __name__ == "__main__":

@@ -111,10 +111,7 @@ def main(argv: list[str] | None = None) -> None:
         vals = " | ".join(f"{r[c]:+.2f}" for c in cols)
         lines.append(f"| {r['seed']} | {r['group']} | {r['name']} | {vals} | {r['from_truth_v2v']:.2f} |")
     text = "\n".join(lines) + "\n"
-    print("\n" + text)
-    if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.out).write_text(text)
+    us.report(text, a.out)
 
 
 if __name__ == "__main__":

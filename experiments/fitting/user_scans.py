@@ -510,6 +510,14 @@ def goals(records: list[dict]) -> list[dict]:
     return out
 
 
+def report(text: str, out: str | None) -> None:
+    """Print a probe's Markdown ``text`` and write it to ``out`` when given (its folder made)."""
+    print("\n" + text)
+    if out:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_text(text)
+
+
 def goals_table(rows: list[dict]) -> str:
     lines = ["| group | goal | measured | met |", "|---|---|---|---|"]
     lines += [
