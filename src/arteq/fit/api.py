@@ -73,7 +73,8 @@ class FitResult:
     ``point_confidence [N]`` its probability, ``point_fit_labels [N]`` part of the nearest fitted
     vertex, ``point_distance [N]`` distance to it (scan units, inf for dropped NaN rows),
     ``point_clutter [N]`` what clutter removal did with each row (:data:`arteq.fit.clean.CODES`: 0 kept,
-    1 plane, 2 outlier, 3 separate cluster; -1 NaN). ``clean``: the :class:`CleanResult` (or None).
+    1 plane, 2 outlier, 3 separate cluster, 4 a flat object touching the body; -1 NaN). ``clean``: the
+    :class:`CleanResult` (or None).
     ``quality``: :func:`arteq.fit.quality.fit_quality` values; ``uncertain_reason``: why the check
     doubts the fit (status ``uncertain`` or ``refused``; empty otherwise); ``timings`` in seconds.
     ``scan_mode``: ``full`` or ``partial`` (one camera's view), ``scan_mode_reason`` how it was chosen,
@@ -162,7 +163,7 @@ class FitResult:
         clutter = {
             "point_clutter": self.point_clutter,
             "clutter_removed": np.bool_(self.clean is not None),
-            **{f"clutter_{k}": np.int64(c.get(k, 0)) for k in ("plane", "outlier", "cluster")},
+            **{f"clutter_{k}": np.int64(c.get(k, 0)) for k in ("plane", "outlier", "cluster", "object")},
             # each removed plane as [nx, ny, nz, d] with n.p + d = 0 for p in the scan's units
             "clutter_planes": np.array(
                 [[*pl["normal"], pl["offset"] / self.scale_to_m] for pl in planes], dtype=np.float64
@@ -261,7 +262,7 @@ class FitResult:
             "clothing_cm": (self.clothing or {}).get("thickness_cm", 0.0),
             **{
                 f"removed_{k}": (self.clean.counts[k] if self.clean is not None else None)
-                for k in ("plane", "outlier", "cluster")
+                for k in ("plane", "outlier", "cluster", "object")
             },
             **_anny_row(self.anny),
             "seconds": self.timings.get("total"),
@@ -699,20 +700,33 @@ class Fitter:
         scale = UNITS[units]
         metres = finite * scale
         cleaned = None
-        clutter = np.full(len(pts), -1, dtype=np.int8)
-        clutter[keep] = 0
         t0 = time.perf_counter()
         if self.clean:
             # units first (a millimetre file read as metres is not a room to clean), loosely: the room counts
             check_body_size(metres, name, units, limits_m=(0.4, 8.0))
             camera = None if viewpoint is None else np.asarray(viewpoint, float) * scale
             cleaned = clean_scan(metres, self.clean_config, viewpoint=camera)  # plane bands grow with range
-            clutter[keep] = cleaned.codes
             if cleaned.keep.sum() < MIN_POINTS:
                 raise ScanError(
                     f"{name}: only {int(cleaned.keep.sum())} points left after clutter removal "
                     f"({cleaned.describe()}), at least {MIN_POINTS} are needed (try --no-clean)"
                 )
+        t_clean = time.perf_counter() - t0
+        return self._item(name, metres, keep, cleaned, warnings, scale, units, viewpoint, t_clean)
+
+    def _item(
+        self, name: str, metres: np.ndarray, finite: np.ndarray, cleaned: CleanResult | None,
+        warnings: list[str], scale: float, units: str, viewpoint: np.ndarray | None, t_clean: float,
+    ) -> dict[str, Any]:  # fmt: skip
+        """:meth:`prepare`'s item of the finite points ``metres`` (rows ``finite [N]`` of the file's) after
+        clutter removal ``cleaned`` (None: off)."""
+        t0 = time.perf_counter()
+        clutter = np.full(len(finite), -1, dtype=np.int8)
+        clutter[finite] = 0
+        base_warnings = list(warnings)
+        warnings = list(warnings)
+        if cleaned is not None:
+            clutter[finite] = cleaned.codes
             if cleaned.describe():
                 warnings.append(cleaned.describe())
             body_m = metres[cleaned.keep]
@@ -733,11 +747,12 @@ class Fitter:
         if len(body_m) > self.points:
             sub = np.random.default_rng(self.seed).choice(len(body_m), self.points, replace=False)
         conditions = scan_conditions(body_m if sub is None else body_m[sub], seed=self.seed)
-        t_clean = time.perf_counter() - t0
+        t_clean += time.perf_counter() - t0
         return {"name": name, "centred": body_m - center, "center": center, "keep": clutter == 0,
                 "conditions": conditions, "subsample": sub,
-                "finite": keep, "finite_centred": metres - center, "clutter": clutter, "clean": cleaned,
+                "finite": finite, "finite_centred": metres - center, "clutter": clutter, "clean": cleaned,
                 "clean_seconds": t_clean, "scale": scale, "units": units, "warnings": warnings,
+                "base_warnings": base_warnings,
                 "viewpoint": None if viewpoint is None else np.asarray(viewpoint, float) * scale - center,
                 }  # fmt: skip
 
@@ -775,6 +790,8 @@ class Fitter:
         import roma
 
         results, exports = self._fit_batch(items)
+        if self.clean and self.clean_config.objects and self.refine and self.check:
+            self._objects(items, results, exports)
         if self.retries and self.refine and self.check:
             self._retry(items, results, exports)
         if self.clothing is not None:  # refine is on (checked when built)
@@ -858,6 +875,102 @@ class Fitter:
             r.timings["total"] += seconds
             exports[i] = (out.betas[j].double().cpu().numpy(), pose_aa[j], verts[j] + c)
 
+    def _objects(self, items: list[dict[str, Any]], results: list[FitResult], exports: list[tuple]) -> None:
+        """Fit again, without them, the full scans whose fit the check doubts or refuses (but not two bodies
+        found by clutter removal) and that hold flat objects touching the body: a chair, a stool, which the
+        cluster step keeps with the body they touch (:func:`arteq.fit.clean.touching_planes`, among all the
+        points, then among those off the fit). The refit is kept (``items``, ``results`` and
+        ``exports`` replaced in place; the points removed coded ``object`` in :attr:`FitResult.point_clutter`)
+        when at most ``object_max_on_fit`` of the removed points lie within ``object_on_fit_m`` of it and its
+        surface score on the points left is lower than the first fit's; the check then judges it on those."""
+        from scipy.spatial import cKDTree
+
+        from arteq.fit.clean import touching_planes
+        from arteq.fit.crossing import surface_score
+
+        cfg = self.clean_config
+        todo = list(range(len(results)))
+        for _ in range(cfg.object_rounds):  # a refit kept and still doubted: its points off it looked at
+            rows, tries = [], []
+            for i in todo:
+                r, it = results[i], items[i]
+                flags = (r.quality or {}).get("flags") or []
+                if r.scan_mode != "full" or r.vertices is None or not flags or "second_body" in flags:
+                    continue  # (two clusters each a body: two people, nothing flat to remove)
+                verts = r.vertices.astype(np.float64) * r.scale_to_m - it["center"]
+                dist = cKDTree(verts).query(it["centred"])[0]
+                noise = it["conditions"].get("noise_m")
+                # objects as large as the body first (a child on a chair), searched among all the points,
+                # then the others among those the fit leaves off it
+                removed, planes = touching_planes(it["centred"], np.full(len(dist), np.inf), cfg, noise)
+                more, planes2 = touching_planes(it["centred"], np.where(removed, 0.0, dist), cfg, noise)
+                removed, planes = removed | more, planes + planes2
+                if not planes:
+                    continue
+                try:
+                    tries.append(self._without(it, removed, planes))
+                except ScanError:  # too few points left: the fit stands
+                    continue
+                rows.append((i, removed))
+            if not tries:
+                return
+            t0 = time.perf_counter()
+            res_t, exp_t = self._fit_batch(tries)
+            seconds = (time.perf_counter() - t0) / len(tries)
+            todo = []
+            for (i, removed), it2, r2, e2 in zip(rows, tries, res_t, exp_t, strict=True):
+                first = results[i]
+                first.timings["objects"] = first.timings.get("objects", 0.0) + seconds
+                first.timings["total"] += seconds
+                if r2.vertices is None:
+                    continue
+                c2 = it2["center"]
+                v2 = r2.vertices.astype(np.float64) * r2.scale_to_m - c2
+                gone = items[i]["centred"][removed] + items[i]["center"] - c2
+                on_fit = float((cKDTree(v2).query(gone)[0] < cfg.object_on_fit_m).mean())
+                pts = r2.scan_points.astype(np.float64) * r2.scale_to_m - c2
+                v1 = first.vertices.astype(np.float64) * first.scale_to_m - c2
+                if on_fit > cfg.object_max_on_fit or surface_score(pts, v2, self.subset) >= surface_score(
+                    pts, v1, self.subset
+                ):
+                    continue
+                r2.timings = dict(first.timings)  # the first fit's steps, and the refits' time
+                self._flag_refit(r2, first.uncertain_reason or describe_flags(first.quality))
+                results[i], exports[i], items[i] = r2, e2, it2
+                todo.append(i)
+
+    def _flag_refit(self, r: FitResult, first_doubt: str) -> None:
+        """A refit of a doubted fit that the check passes stays flagged (``refitted``): it was picked by its
+        surface, which wrong vertices can explain too (experiments/fitting/crossing.md)."""
+        if r.status != "ok":
+            return
+        r.quality["flags"].append("refitted")
+        r.quality["first_doubt"] = first_doubt
+        r.uncertain_reason = describe_flags(r.quality)
+        r.status = "refused" if self.strict else "uncertain"
+        what = "refused (--strict)" if self.strict else "written, check it"
+        r.message = f"{r.name}: uncertain fit, {what} ({r.uncertain_reason})" + (
+            "; " + "; ".join(r.warnings) if r.warnings else ""
+        )
+
+    def _without(self, item: dict[str, Any], removed: np.ndarray, planes: list[dict]) -> dict[str, Any]:
+        """``item`` (:meth:`prepare`'s, cleaned) with its points ``removed [M]`` (rows of ``item["centred"]``)
+        removed as flat objects (``planes``: :func:`arteq.fit.clean.touching_planes`'s)."""
+        import dataclasses
+
+        from arteq.fit.clean import CODES
+
+        cleaned = item["clean"]
+        rows = np.flatnonzero(cleaned.keep)[removed]  # rows of the finite points
+        codes, keep = cleaned.codes.copy(), cleaned.keep.copy()
+        codes[rows], keep[rows] = CODES["object"], False
+        if keep.sum() < MIN_POINTS:  # flat all over (a box): nothing of a body left to fit
+            raise ScanError(f"{item['name']}: only {int(keep.sum())} points left off flat objects")
+        cleaned = dataclasses.replace(cleaned, codes=codes, keep=keep, objects=cleaned.objects + planes)
+        metres = item["finite_centred"] + item["center"]
+        return self._item(item["name"], metres, item["finite"], cleaned, item["base_warnings"], item["scale"],
+                          item["units"], None, item["clean_seconds"])  # fmt: skip
+
     def _retry(self, items: list[dict[str, Any]], results: list[FitResult], exports: list[tuple]) -> None:
         """Fit again the full scans whose fit the check doubts and whose surface score is above
         ``retry_above_cm``: ``retries`` times each, from the network's reading of the scan turned by one of
@@ -895,13 +1008,8 @@ class Fitter:
             best = int(np.argmin([c[0] for c in cands]))
             picked = cands[best][1]
             picked.retry = {"scores_cm": [round(float(c[0]), 4) for c in cands], "picked": best}
-            if best and picked.status == "ok":  # a retry the check passes stays flagged, as a crossing refit
-                picked.quality["flags"].append("refitted")
-                picked.quality["first_doubt"] = results[i].uncertain_reason
-                picked.uncertain_reason = describe_flags(picked.quality)
-                picked.status = "refused" if self.strict else "uncertain"
-                what = "refused (--strict)" if self.strict else "written, check it"
-                picked.message = f"{picked.name}: uncertain fit, {what} ({picked.uncertain_reason})"
+            if best:  # a retry the check passes stays flagged, as a crossing refit
+                self._flag_refit(picked, results[i].uncertain_reason)
             picked.timings = {**results[i].timings, "retry": seconds}
             picked.timings["total"] += seconds
             results[i], exports[i] = picked, cands[best][2]

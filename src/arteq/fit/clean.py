@@ -53,6 +53,12 @@ standard means (metres, any orientation: nothing assumes an up axis):
    still removed (experiments/single_view/readings/clusters_probe.md); full surfaces are not one-sided and
    are cleaned as before.
 
+4. **flat objects touching the body** (``object``; :func:`touching_planes`, run by the fitter after a fit
+   the check doubts): a chair, a stool or a box touches the body, so the cluster step keeps it. Among all
+   the points, then among those far off that fit, planes whose patch spans ``object_min_extent_m`` both
+   ways with peaked residuals are objects; their points are removed and the scan fitted again
+   (:meth:`arteq.fit.Fitter.fit_prepared`; experiments/fitting/contact_clutter.md).
+
 Clouds larger than ``max_points`` are cleaned on a random subset of that size and every point takes the
 label of its nearest subset point. Every input point gets a code (:data:`CODES`); counts and planes go to
 the ``.npz`` and the summary. Measured on generated cluttered scans: experiments/fitting/README.md; on
@@ -66,7 +72,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 #: Per-point codes of :attr:`CleanResult.codes`.
-CODES = {"kept": 0, "plane": 1, "outlier": 2, "cluster": 3}
+CODES = {"kept": 0, "plane": 1, "outlier": 2, "cluster": 3, "object": 4}
 
 
 @dataclass
@@ -112,6 +118,25 @@ class CleanConfig:
     one_sided_views: bool = True
     max_points: int = 30000
     seed: int = 0
+    #: flat objects touching the body (a chair, a stool, a scanner's turntable): no cluster step can cut them
+    #: off. Where the check doubts a full scan's fit, :func:`touching_planes` looks for them among the points
+    #: the fit leaves more than ``object_far_m`` away, and the scan is fitted again without them
+    #: (:meth:`arteq.fit.Fitter.fit_prepared`; experiments/fitting/contact_clutter.md)
+    objects: bool = True
+    object_far_m: float = 0.03
+    object_band_m: float = 0.012
+    object_min_points: int = 50
+    object_min_extent_m: float = 0.15
+    object_link_m: float = 0.04
+    object_margin_m: float = 0.03
+    object_max_planes: int = 8
+    object_trials: int = 1000
+    object_hypotheses: int = 30
+    object_rounds: int = 2
+    #: the refit is kept only if at most this share of the removed points lies within ``object_on_fit_m`` of
+    #: it (points the body explains are not an object's) and it explains the points left better
+    object_max_on_fit: float = 0.3
+    object_on_fit_m: float = 0.015
 
     @classmethod
     def from_strings(cls, items: list[str] | tuple[str, ...], **base) -> CleanConfig:
@@ -130,6 +155,8 @@ class CleanResult:
     planes: list[dict] = field(default_factory=list)  # normal [3], offset (n.p + d = 0), points, band_m
     flags: list[str] = field(default_factory=list)
     second_cluster: dict = field(default_factory=dict)  # points, extent_m, gap_m of the largest other one
+    #: flat objects touching the body, removed after a doubted fit (:func:`touching_planes`): points, extent_m
+    objects: list[dict] = field(default_factory=list)
     seconds: float = 0.0
 
     @property
@@ -149,6 +176,9 @@ class CleanResult:
             parts.append(f"{c['outlier']} stray points")
         if c["cluster"]:
             parts.append(f"{c['cluster']} points in separate clusters")
+        if c["object"]:
+            k = len(self.objects)
+            parts.append(f"{c['object']} points on {k} flat object{'s' if k > 1 else ''} touching the body")
         return ("removed " + ", ".join(parts)) if parts else ""
 
 
@@ -164,6 +194,107 @@ def linked_groups(points: np.ndarray, radius: float, tree=None) -> np.ndarray:
         (np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2
     )
     return connected_components(graph, directed=False)[1]
+
+
+def touching_planes(
+    points: np.ndarray, dist: np.ndarray, cfg: CleanConfig | None = None, noise_m: float | None = None
+) -> tuple[np.ndarray, list[dict]]:
+    """Flat objects touching a body: ``(removed [N] bool, planes)`` of ``points [N, 3]`` (metres) given each
+    point's distance ``dist [N]`` to a fit of the body.
+
+    Up to ``object_max_planes`` times: a RANSAC plane among the points farther than ``object_far_m`` from
+    the fit and not yet removed (band: ``plane_noise_k`` times the scan's noise ``noise_m``, at least
+    ``object_band_m``; failing that, ``object_band_m``: an object's edges inflate the noise measured on the
+    scan); its inliers' largest group linked by steps under ``object_link_m`` must hold
+    ``object_min_points`` points, span ``object_min_extent_m`` along both of its in-plane principal axes
+    (2-98 percentiles) and have peaked residuals (robust spread at most ``plane_max_sigma_frac`` of the band):
+    a chair's seat or back, a platform, a box's side; not a limb, whose slice through a plane is a strip a
+    few centimetres wide, nor a slice through a curved body, whose residuals fill the band. Removed are all
+    points within the band over that patch's rectangle grown by ``object_margin_m``, those where the object
+    touches the body included. Planes: each one's ``points`` (removed), ``extent_m`` and ``band_m``."""
+    cfg = cfg or CleanConfig()
+    pts = np.asarray(points, dtype=np.float64)
+    rng = np.random.default_rng(cfg.seed)
+    removed = np.zeros(len(pts), dtype=bool)
+    planes: list[dict] = []
+    kept: list[tuple] = []  # each plane's normal, offset and patch
+    # the band from the scan's noise, and the narrowest band too: an object's edges and corners inflate the
+    # noise measured on a scan, and a band that takes in both faces of a chair's back is not peaked
+    bands = sorted({cfg.object_band_m, max(cfg.object_band_m, cfg.plane_noise_k * (noise_m or 0.0))})[::-1]
+    for _ in range(cfg.object_max_planes):
+        P = pts[(np.asarray(dist) > cfg.object_far_m) & ~removed]
+        if len(P) < max(3, cfg.object_min_points):
+            break
+        tri = P[rng.integers(0, len(P), (cfg.object_trials, 3))]
+        normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        norm = np.linalg.norm(normals, axis=1)
+        ok = norm > 1e-9
+        normals = normals[ok] / norm[ok, None]
+        offsets = -(normals * tri[ok, 0]).sum(1)
+        found = None
+        for band in bands:
+            found = _object_plane(P, normals, offsets, band, cfg)
+            if found is not None:
+                break
+        if found is None:
+            break
+        n, d, patch = found
+        for k, (n0, d0, patch0) in enumerate(kept):  # the same plane, cut in two where the body touches it
+            if abs(n @ n0) > np.cos(np.radians(5)) and np.abs(patch @ n0 + d0).mean() < band:
+                n, d, patch = n0, d0, np.concatenate([patch0, patch])
+                del kept[k], planes[k]
+                break
+        kept.append((n, d, patch))
+        basis, centre, axes, extent, lo = _rectangle(patch, n)
+        w = (pts @ basis - centre) @ axes.T - lo + cfg.object_margin_m
+        inside = np.all((w > 0) & (w < extent + 2 * cfg.object_margin_m), axis=1)
+        region = (np.abs(pts @ n + d) < band) & inside
+        removed |= region
+        planes.append({"points": int(region.sum()), "extent_m": [round(float(x), 3) for x in extent],
+                       "band_m": round(float(band), 4)})  # fmt: skip
+    return removed, planes
+
+
+def _object_plane(
+    P: np.ndarray, normals: np.ndarray, offsets: np.ndarray, band: float, cfg: CleanConfig
+) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """The first of the RANSAC planes ``normals``, ``offsets`` (most inliers of ``P`` within ``band`` first)
+    whose refitted patch is an object's (:func:`touching_planes`): ``(normal, offset, patch points)``."""
+    counts = (np.abs(P @ normals.T + offsets) < band).sum(0)
+    for best in np.argsort(counts)[::-1][: cfg.object_hypotheses]:
+        if counts[best] < cfg.object_min_points:
+            return None
+        n, d = normals[best], offsets[best]
+        for _ in range(2):
+            n, d = _refit(P, np.abs(P @ n + d) < band)
+        inl = np.flatnonzero(np.abs(P @ n + d) < band)
+        if len(inl) < cfg.object_min_points:
+            continue
+        groups = linked_groups(P[inl], cfg.object_link_m)
+        patch = P[inl[groups == np.bincount(groups).argmax()]]
+        if len(patch) < cfg.object_min_points:
+            continue
+        # peaked residuals: a surface's noise, not a slice through a curved body filling the band
+        sigma = _robust_sigma(patch @ n + d)
+        if (
+            _rectangle(patch, n)[3].min() >= cfg.object_min_extent_m
+            and sigma <= cfg.plane_max_sigma_frac * band
+        ):
+            return n, d, patch
+    return None
+
+
+def _rectangle(patch: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, ...]:
+    """A plane patch's rectangle (normal ``n``): ``(basis [3, 2], centre [2], axes [2, 2], extent [2], lo
+    [2])``: in-plane coordinates ``(p @ basis - centre) @ axes.T`` span ``lo`` to ``lo + extent`` (the
+    patch's 2-98 percentiles along its principal axes)."""
+    basis = np.stack(_plane_basis(n), 1)
+    uv = patch @ basis
+    centre = uv.mean(0)
+    _, _, axes = np.linalg.svd(uv - centre, full_matrices=False)
+    w = (uv - centre) @ axes.T
+    lo, hi = np.percentile(w, 2, axis=0), np.percentile(w, 98, axis=0)
+    return basis, centre, axes, hi - lo, lo
 
 
 def _spacing(tree, pts: np.ndarray, k: int = 4) -> float:

@@ -72,6 +72,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="refuse uncertain fits too (status refused, nothing written)")  # fmt: skip
     ap.add_argument("--clean", action=argparse.BooleanOptionalAction, default=True,
                     help="remove floors, walls, stray points, other objects first (default: on)")  # fmt: skip
+    ap.add_argument("--objects", action=argparse.BooleanOptionalAction, default=True,
+                    help="full scans whose fit the check doubts: look for flat objects touching the body "
+                    "(a chair, a stool) among the points off the fit, fit again without them "
+                    "(default: on)")  # fmt: skip
     ap.add_argument("--anny", action=argparse.BooleanOptionalAction, default=None,
                     help="Anny phenotype, pose and body measurements per fit (default: when the anny "
                     "package is installed and the body is an Anny body; --anny: required)")  # fmt: skip
@@ -128,6 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     import torch  # heavy imports only after the arguments are known good
 
     from arteq.fit.api import Fitter
+    from arteq.fit.clean import CleanConfig
     from arteq.fit.depth import DepthOptions
     from arteq.fit.files import fit_files
     from arteq.fit.refine import RefineConfig
@@ -150,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
                       strict=args.strict, partial=args.partial, view_dir=args.view_dir,
                       crossing=args.crossing, second_start=args.second_start,
                       shape_betas=args.shape_betas, net_draws=args.net_draws, retries=args.retries,
-                      retry_above_cm=args.retry_above, clothing=clothing)  # fmt: skip
+                      retry_above_cm=args.retry_above, clothing=clothing,
+                      clean_config=CleanConfig(objects=args.objects))  # fmt: skip
         fitter = Fitter(**kwargs)
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"arteq-fit: {exc}", file=sys.stderr)

@@ -39,8 +39,8 @@ SUMMARY_COLUMNS = [
     "input", "name", "status", "message", "uncertain_reason", "inlier_frac", "rmse_in_cm", "mean_dist_cm",
     "coverage", "label_agree", "parts_covered", "max_abs_beta", "extent_m", "noise_mm", "denoised", "flags",
     "scan_mode", "parts_seen", "parts_unseen", "start", "crossing", "retry", "clothing_cm", "removed_plane",
-    "removed_outlier", "removed_cluster", "stature_cm", "waist_cm", "mass_kg", "bmi", "age_years",
-    "anny_rebuild_mm", "seconds", "anny_seconds",
+    "removed_outlier", "removed_cluster", "removed_object", "stature_cm", "waist_cm", "mass_kg", "bmi",
+    "age_years", "anny_rebuild_mm", "seconds", "anny_seconds",
 ]  # fmt: skip
 
 

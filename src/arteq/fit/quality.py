@@ -373,7 +373,7 @@ def describe_flags(q: dict, flags: list[str] | None = None) -> str:
         ),
         "off_fit_limb": (
             f"{q.get('off_group_frac', 0.0):.1%} of the points, {q.get('off_group_cm', 0.0):.0f} cm across, "
-            "lie off the fit together: a limb fitted elsewhere"
+            "lie off the fit together: a limb fitted elsewhere, or an object touching the body"
         ),
         "second_body": (
             f"a second body-sized object beside it ({q.get('second_body_points', 0)} points, "
