@@ -225,12 +225,7 @@ def touching_planes(
         P = pts[(np.asarray(dist) > cfg.object_far_m) & ~removed]
         if len(P) < max(3, cfg.object_min_points):
             break
-        tri = P[rng.integers(0, len(P), (cfg.object_trials, 3))]
-        normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        norm = np.linalg.norm(normals, axis=1)
-        ok = norm > 1e-9
-        normals = normals[ok] / norm[ok, None]
-        offsets = -(normals * tri[ok, 0]).sum(1)
+        normals, offsets = _plane_hypotheses(P, cfg.object_trials, rng)
         found = None
         for band in bands:
             found = _object_plane(P, normals, offsets, band, cfg)
@@ -253,6 +248,19 @@ def touching_planes(
         planes.append({"points": int(region.sum()), "extent_m": [round(float(x), 3) for x in extent],
                        "band_m": round(float(band), 4)})  # fmt: skip
     return removed, planes
+
+
+def _plane_hypotheses(
+    pts: np.ndarray, trials: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """RANSAC hypotheses: the planes ``normals [M, 3]``, ``offsets [M]`` (``n.p + d = 0``) through ``trials``
+    random triplets of ``pts``, degenerate ones left out."""
+    tri = pts[rng.integers(0, len(pts), (trials, 3))]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(normals, axis=1)
+    ok = norm > 1e-9
+    normals = normals[ok] / norm[ok, None]
+    return normals, -(normals * tri[ok, 0]).sum(1)
 
 
 def _object_plane(
@@ -399,14 +407,9 @@ def _find_plane(
         return None
     score_idx = rng.choice(n_pts, min(n_pts, 3000), replace=False)
     S = pts[score_idx]
-    tri = pts[rng.integers(0, n_pts, (cfg.plane_trials, 3))]
-    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    norm = np.linalg.norm(normals, axis=1)
-    ok = norm > 1e-9
-    if not ok.any():
+    normals, offsets = _plane_hypotheses(pts, cfg.plane_trials, rng)
+    if not len(normals):
         return None
-    normals = normals[ok] / norm[ok, None]
-    offsets = -(normals * tri[ok, 0]).sum(1)
     counts = (np.abs(S @ normals.T + offsets) < cfg.plane_search_band_m).sum(0)
     for best in np.argsort(counts)[::-1][:5]:  # the few best hypotheses, refitted and tested
         if counts[best] * n_pts / len(S) < min_pts:
