@@ -897,6 +897,7 @@ class Fitter:
                 flags = (r.quality or {}).get("flags") or []
                 if r.scan_mode != "full" or r.vertices is None or not flags or "second_body" in flags:
                     continue  # (two clusters each a body: two people, nothing flat to remove)
+                t_search = time.perf_counter()
                 verts = r.vertices.astype(np.float64) * r.scale_to_m - it["center"]
                 dist = cKDTree(verts).query(it["centred"])[0]
                 noise = it["conditions"].get("noise_m")
@@ -905,6 +906,9 @@ class Fitter:
                 removed, planes = touching_planes(it["centred"], np.full(len(dist), np.inf), cfg, noise)
                 more, planes2 = touching_planes(it["centred"], np.where(removed, 0.0, dist), cfg, noise)
                 removed, planes = removed | more, planes + planes2
+                t_search = time.perf_counter() - t_search
+                r.timings["objects"] = r.timings.get("objects", 0.0) + t_search
+                r.timings["total"] += t_search
                 if not planes:
                     continue
                 try:
