@@ -4,6 +4,8 @@ step; experiments/fitting/contact_clutter.md)."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -100,6 +102,9 @@ def test_a_scan_with_a_board_touching_the_body_is_fitted_again_without_it(anny22
     assert v2v[True] < v2v[False], v2v
     assert on.summary_row()["removed_object"] == on.clean.counts["object"]
     assert on.arrays()["clutter_object"] == on.clean.counts["object"]
+    objects = json.loads(json.dumps(on.to_json()))["clutter_objects"]  # what a person reads
+    assert objects and all(min(o["extent_m"]) >= 0.15 and o["points"] > 0 for o in objects)
+    assert json.loads(json.dumps(off.to_json()))["clutter_objects"] == []
 
 
 def test_a_box_is_still_refused_when_all_of_it_is_flat(tiny_ckpt):

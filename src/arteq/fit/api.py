@@ -227,6 +227,8 @@ class FitResult:
             "betas": [round(float(b), 4) for b in self.betas] if self.betas is not None else None,
             "quality": q,
             "clutter_removed": self.clean.counts if self.clean is not None else None,
+            # flat objects touching the body removed after a doubted fit (step 6c): points, extent_m, band_m
+            "clutter_objects": self.clean.objects if self.clean is not None else None,
             "start": self.start_hypothesis,
             "crossing": self.crossing,
             "retry": self.retry,
