@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -142,11 +141,7 @@ def main() -> None:
                 crossing.swap_start = swap_or_reach if on else _swap
                 api.pairs_to_try = pairs_plus if on else _pairs
                 api.try_swaps = try_with_reach if on else _try
-                t0 = time.perf_counter()
-                r = f.fit_points(s.points, name=s.name)
-                sec = time.perf_counter() - t0
-                v2v = float(np.linalg.norm(r.vertices - s.vertices, axis=1).mean() * 100)
-                taken = (r.crossing or {}).get("taken", "-") or "-"
+                v2v, taken, sec, r = us.timed_fit(f, s)
                 if taken.startswith("reach_"):
                     taken = "reach " + JOINT_NAMES[int(taken.split("_")[1])]
                 res[arm] = (v2v, taken, sec, r.status)

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -104,11 +103,7 @@ def main() -> None:
             for arm in ("base", "rolls"):
                 crossing.swap_start = swap_or_roll if arm == "rolls" else _swap
                 api.pairs_to_try = pairs_with_rolls if arm == "rolls" else _pairs
-                t0 = time.perf_counter()
-                r = f.fit_points(s.points, name=s.name)
-                sec = time.perf_counter() - t0
-                v2v = float(np.linalg.norm(r.vertices - s.vertices, axis=1).mean() * 100)
-                taken = (r.crossing or {}).get("taken", "-") or "-"
+                v2v, taken, sec, r = us.timed_fit(f, s)
                 res[arm] = (v2v, taken, sec, r.status)
                 if arm == "rolls" and r.crossing:
                     tried = sorted(r.crossing["tried_cm"].items(), key=lambda kv: kv[1])

@@ -518,6 +518,15 @@ def report(text: str, out: str | None) -> None:
         Path(out).write_text(text)
 
 
+def timed_fit(fitter, scan: Scan) -> tuple[float, str, float, object]:
+    """A probe's arm on one scan: ``(V2V cm, the crossed-limb swap taken or "-", seconds, FitResult)``."""
+    t0 = time.perf_counter()
+    r = fitter.fit_points(scan.points, name=scan.name)
+    sec = time.perf_counter() - t0
+    v2v = float(np.linalg.norm(r.vertices - scan.vertices, axis=1).mean() * 100)
+    return v2v, (r.crossing or {}).get("taken", "-") or "-", sec, r
+
+
 def goals_table(rows: list[dict]) -> str:
     lines = ["| group | goal | measured | met |", "|---|---|---|---|"]
     lines += [
