@@ -126,3 +126,32 @@ def test_athletic_source_reaches_past_the_clinical_limits_and_stays_in_its_own()
         assert 0.1 < (e > hi[up[0], 2] + 10).float().mean() < 0.5
     hip = JOINT_NAMES.index("left_hip")
     assert ((angles[:, hip, 2] > hi[hip, 2] + 10).float().mean()) > 0.1  # splits
+
+
+def test_spine_chain_bends_the_spine_together_within_its_limits():
+    from arteq.data.poses import ATHLETIC_LIMITS_DEG, SPINE_CHAIN, joint_limit_bounds
+
+    plain = SyntheticOODPoses(limits=ATHLETIC_LIMITS_DEG)
+    off = SyntheticOODPoses(limits=ATHLETIC_LIMITS_DEG, spine_chain_prob=0.0)
+    chain = SyntheticOODPoses(limits=ATHLETIC_LIMITS_DEG, spine_chain_prob=1.0)
+    assert off.fingerprint() == plain.fingerprint()  # the sets drawn before the option keep their keys
+    assert chain.fingerprint() != plain.fingerprint()
+
+    def draw(src, n=600):
+        g = torch.Generator().manual_seed(7)
+        return torch.stack([src.euler(g) for _ in range(n)])
+
+    assert torch.equal(draw(off, 50), draw(plain, 50))  # off: the same draws, random number for number
+    lo, hi = joint_limit_bounds(ATHLETIC_LIMITS_DEG)
+    spine = [JOINT_NAMES.index(n) for n in SPINE_CHAIN]
+    for angles, together in ((draw(plain), False), (draw(chain), True)):
+        assert (angles >= lo - 1e-9).all() and (angles <= hi + 1e-9).all()
+        for ax in range(3):  # flexion, twist, side bend
+            c = torch.corrcoef(angles[:, spine, ax].T)
+            assert (c[0, 1:] > 0.7).all() if together else (c[0, 1:] < 0.3).all()
+        # all three segments in the last 20 % of their extension (a back bend): rare when independent
+        frac = (angles[:, spine, 0] - lo[spine, 0]) / (hi[spine, 0] - lo[spine, 0])
+        share = (frac < 0.2).all(dim=1).float().mean()
+        assert share > 0.04 if together else share < 0.01
+    with pytest.raises(ValueError, match="spine_chain_prob"):
+        SyntheticOODPoses(spine_chain_prob=1.5)

@@ -158,3 +158,15 @@ def test_athletic_training_source_is_the_ood_sampler_over_the_wider_range(toy_bo
     plain = BodyScanDataModule(body_model=toy_body, cache=False)
     for split in ("val", *TEST_SPLITS):  # no test set draws from it
         assert mixed._sources(split).fingerprint() == plain._sources(split).fingerprint()
+
+
+def test_athletic_spine_source_bends_the_spine_as_a_chain_in_half_the_draws(toy_body):
+    from arteq.data.poses import ATHLETIC_LIMITS_DEG
+
+    mixed = BodyScanDataModule(body_model=toy_body, train_pose_mix={"athletic_spine": 1.0}, cache=False)
+    src = mixed._sources("train").sources["athletic_spine"]
+    want = SyntheticOODPoses(limits=ATHLETIC_LIMITS_DEG, spine_chain_prob=0.5)
+    assert src.fingerprint() == want.fingerprint()
+    plain = BodyScanDataModule(body_model=toy_body, cache=False)
+    for split in ("val", *TEST_SPLITS):
+        assert mixed._sources(split).fingerprint() == plain._sources(split).fingerprint()

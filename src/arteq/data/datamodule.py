@@ -89,8 +89,9 @@ GRADED_DEFAULT_SIZE = 128
 #: poses (synthetic everyday motions, widened by ``wide_poses``, or the AMASS training frames), the others
 #: the synthetic samplers of the OOD test sets (their own random streams: the test sets stay held out).
 #: ``athletic`` is the OOD sampler with a trained athlete's joint range (poses.ATHLETIC_LIMITS_DEG; training
-#: only, no test set draws from it).
-TRAIN_MIX_SOURCES = ("id", "ood", "limb1", "limb2", "contact", "athletic")
+#: only, no test set draws from it); ``athletic_spine`` the same with the spine bending as one chain in half
+#: of the draws (``SyntheticOODPoses(spine_chain_prob=0.5)``: back bends, pikes, side bends).
+TRAIN_MIX_SOURCES = ("id", "ood", "limb1", "limb2", "contact", "athletic", "athletic_spine")
 
 
 class CorruptCacheError(RuntimeError):
@@ -427,6 +428,7 @@ class BodyScanDataModule(L.LightningDataModule):
                 "limb2": lambda: LimbOODPoses(2),
                 "contact": lambda: ContactRejectedPoses(self.body),
                 "athletic": lambda: SyntheticOODPoses(limits=ATHLETIC_LIMITS_DEG),
+                "athletic_spine": lambda: SyntheticOODPoses(limits=ATHLETIC_LIMITS_DEG, spine_chain_prob=0.5),
             }
             mix = {k: w for k, w in self.train_pose_mix.items() if w > 0}
             return MixedPoses({k: named[k]() for k in mix}, mix)

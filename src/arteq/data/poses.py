@@ -372,6 +372,9 @@ ATHLETIC_LIMITS_DEG: dict[str, tuple[tuple[float, float], tuple[float, float], t
     "left_shoulder": ((-90, 90), (-135, 90), (-90, 170)),
 }
 
+#: The joints :class:`SyntheticOODPoses` bends together with its ``spine_chain_prob``.
+SPINE_CHAIN = ("spine1", "spine2", "spine3")
+
 #: Extreme templates mixed into the OOD draw (left side / central, degrees); the rest uniform in limits.
 OOD_TEMPLATES: dict[str, dict[str, tuple[float, float, float]]] = {
     "sit_on_floor": {"left_hip": (-95, 0, 15), "left_knee": (5, 0, 0), "spine1": (20, 0, 0)},
@@ -410,6 +413,13 @@ class SyntheticOODPoses(PoseSource):
     every pose of a fixed bank of ``id_bank_size`` ID poses is below ``min_gap_deg`` is rejected and
     redrawn (with the default 15 degrees this practically never happens; see docs/data.md for the
     measured gap). Infinite.
+
+    With probability ``spine_chain_prob`` (default 0: the draw is the same as without it, random number for
+    random number) the spine's joints (:data:`SPINE_CHAIN`) bend together: per axis (flexion, twist,
+    side bend) one shared fraction ``f ~ U(0, 1)`` of the range, each joint at ``f`` plus ``N(0, 0.1)``
+    of its own range, clipped. A spine bends through all its segments at once (a back bend, a pike, a
+    side bend); independent uniform draws almost never put all three segments near the same end of their
+    ranges (about 1 draw in 1000 within the last 10 %).
     """
 
     def __init__(
@@ -419,8 +429,12 @@ class SyntheticOODPoses(PoseSource):
         id_bank_size: int = 512,
         id_source: SyntheticIDPoses | None = None,
         limits: Mapping[str, Any] | None = None,
+        spine_chain_prob: float = 0.0,
     ) -> None:
+        if not 0.0 <= spine_chain_prob <= 1.0:
+            raise ValueError(f"SyntheticOODPoses: spine_chain_prob must be in [0, 1], got {spine_chain_prob}")
         self.template_prob = template_prob
+        self.spine_chain_prob = float(spine_chain_prob)
         self.min_gap_deg = min_gap_deg
         self.id_bank_size = id_bank_size
         self.id_source = SyntheticIDPoses() if id_source is None else id_source
@@ -430,7 +444,7 @@ class SyntheticOODPoses(PoseSource):
         self._bank: torch.Tensor | None = None
 
     def fingerprint(self) -> dict:
-        return {
+        fp = {
             "class": "SyntheticOODPoses",
             "template_prob": self.template_prob,
             "min_gap_deg": self.min_gap_deg,
@@ -439,6 +453,9 @@ class SyntheticOODPoses(PoseSource):
             "limits": self.limits,
             "version": 1,
         }
+        if self.spine_chain_prob > 0:  # only then: the sets drawn before it keep their fingerprints
+            fp["spine_chain_prob"] = self.spine_chain_prob
+        return fp
 
     def _id_bank(self) -> torch.Tensor:
         if self._bank is None:
@@ -450,6 +467,11 @@ class SyntheticOODPoses(PoseSource):
     def euler(self, generator: torch.Generator) -> torch.Tensor:
         """Non-root Euler angles ``[22, 3]`` (degrees, root entry zero)."""
         u = torch.rand(NUM_JOINTS, 3, generator=generator, dtype=torch.float64)
+        if self.spine_chain_prob > 0 and torch.rand((), generator=generator) < self.spine_chain_prob:
+            idx = torch.tensor([J[n] for n in SPINE_CHAIN])
+            shared = torch.rand(1, 3, generator=generator, dtype=torch.float64)
+            own = torch.randn(len(SPINE_CHAIN), 3, generator=generator, dtype=torch.float64) * 0.1
+            u[idx] = (shared + own).clamp(0.0, 1.0)
         ang = self.lo + (self.hi - self.lo) * u
         if torch.rand((), generator=generator) < self.template_prob:
             names = list(OOD_TEMPLATES)
