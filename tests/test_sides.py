@@ -206,3 +206,35 @@ def test_torso_shift_turns_with_the_cloud_and_moves_the_split(sides):
     pairs = far_right[:, list(LEFT_PARTS)] + far_right[:, list(RIGHT_PARTS)]
     torch.testing.assert_close(far_right[:, list(LEFT_PARTS)], pairs, atol=1e-12, rtol=1e-9)
     assert float(pairs.sum()) > 1.0  # the network gave the pairs mass to split
+
+
+@pytest.mark.parametrize("sides", ["torso", "roots"])
+def test_torso_read_turned_round_mirrors_every_pair_and_turns_the_torso(sides):
+    # ``turn_torso``: the torso's rotations turned half a turn about their long axis, so every pair's split
+    # is the plain reading's mirrored (left gets what right got) and the torso keeps its parts; the torso's
+    # returned rotations are the plain ones turned; group equivariance holds; bad uses are errors.
+    from arteq.models.arteq_net import TORSO_TURN
+
+    torch.manual_seed(0)
+    net = ArtEqNet(**SMALL, sides=sides).double().eval()
+    pts = _cloud()
+    with torch.no_grad():
+        plain, turned = net(pts), net(pts, turn_torso=True)
+    p, t = plain["part_probs"][0], turned["part_probs"][0]
+    assert float((p[:, list(LEFT_PARTS)] - p[:, list(RIGHT_PARTS)]).abs().max()) > 1e-3  # a split to mirror
+    torch.testing.assert_close(t[:, list(LEFT_PARTS)], p[:, list(RIGHT_PARTS)])
+    torch.testing.assert_close(t[:, list(RIGHT_PARTS)], p[:, list(LEFT_PARTS)])
+    torch.testing.assert_close(t[:, list(TORSO_PARTS)], p[:, list(TORSO_PARTS)])
+    torso = list(TORSO_PARTS)
+    torch.testing.assert_close(
+        turned["global_rotmats"][:, torso], plain["global_rotmats"][:, torso] @ TORSO_TURN.double()
+    )
+    r = group_rotations(torch.float64)[int(torch.nonzero(element_orders() == 5)[0])]
+    with torch.no_grad():
+        rotated = net(pts @ r.T, turn_torso=True)
+    torch.testing.assert_close(rotated["part_probs"], turned["part_probs"], atol=1e-9, rtol=0)
+    torch.testing.assert_close(rotated["global_rotmats"], r @ turned["global_rotmats"], atol=1e-7, rtol=0)
+    with pytest.raises(ValueError, match="turn_torso"):
+        net(pts, torch.arange(120).remainder(22)[None], turn_torso=True)
+    with pytest.raises(ValueError, match="turn_torso"):
+        ArtEqNet(**SMALL).double().eval()(pts, turn_torso=True)

@@ -76,6 +76,7 @@ class ArtEqNet(nn.Module):
         gt_labels: torch.Tensor | None = None,
         fps_idx: torch.Tensor | None = None,
         torso_shift: torch.Tensor | None = None,
+        turn_torso: bool = False,
     ) -> dict[str, torch.Tensor]:
         """Predict parts, rotations and betas.
 
@@ -93,6 +94,13 @@ class ArtEqNet(nn.Module):
                 the split they were trained with (``pool_weights``, unchanged), so it changes the labels
                 only. It turns with the cloud: the outputs stay equivariant. ``sides: learned`` has no
                 centre and ignores it.
+            turn_torso: read the torso turned round: each torso part's predicted rotation is turned half a
+                turn about the part's own long axis (:data:`TORSO_TURN`, front read as back) before the
+                sides are split in its frame, so every limb's side, pooling and rotation follow; the torso
+                parts' returned ``global_rotmats`` are turned likewise (``rot_mean`` is not). Another
+                reading of a cloud whose torso the network reads back to front (the lost back bends,
+                experiments/scan_model/spine/README.md). Only with ``sides`` ``torso`` or ``roots`` and
+                predicted parts (no ``gt_labels``).
         Returns:
             dict with ``seg_logits [B,N,K]``, ``part_probs [B,N,K]``, ``pool_weights [B,N,K]`` (what was
             used for pooling), ``global_rotmats [B,K,3,3]``, ``rot_mean [B,K,3,3]`` (weighted chordal
@@ -108,6 +116,8 @@ class ArtEqNet(nn.Module):
         # probabilities in float32 at least (under mixed precision the logits may be bfloat16)
         part_probs = torch.softmax(seg_logits, dim=-1, dtype=upcast(seg_logits).dtype)
         side_frame = self.sides in ("torso", "roots")
+        if turn_torso and (not side_frame or gt_labels is not None):
+            raise ValueError("turn_torso needs sides 'torso' or 'roots' and predicted parts (no gt_labels)")
         if gt_labels is not None:  # stage 1: pool the ground-truth parts
             pool_weights = F.one_hot(gt_labels, self.num_parts).to(feats.dtype)
             pose = self._pose(feats, points, pool_weights)
@@ -122,12 +132,18 @@ class ArtEqNet(nn.Module):
                 # The torso's frame from its parts pooled with the predicted probabilities. The torso has no
                 # side and its parents are torso parts, so its rotations are the same before and after.
                 torso = self._pose(feats, points, part_probs, parts=TORSO_PARTS)["rotmats"]
+                if turn_torso:
+                    torso = torso @ TORSO_TURN.to(torso)
                 resolved = self._resolve_sides(seg_logits, points, part_probs, torso)
                 pool_weights = resolved.exp()  # the split the pose head was trained to pool with
                 if torso_shift is not None:
                     resolved = self._resolve_sides(seg_logits, points, part_probs, torso, torso_shift)
                 seg_logits, part_probs = resolved, resolved.exp()
             pose = self._pose(feats, points, pool_weights)
+            if turn_torso:  # the torso's own rotations as the sides were read: turned round
+                rot = pose["rotmats"].clone()
+                rot[:, TORSO_PARTS] = rot[:, TORSO_PARTS] @ TORSO_TURN.to(rot)
+                pose = {**pose, "rotmats": rot}
         part_feats = pose["part_feats"]
         betas = self.shape_head(part_feats.mean(dim=2))
         with full_precision(points):  # relative rotations between parts: no bfloat16 products
@@ -194,6 +210,11 @@ class ArtEqNet(nn.Module):
                     centre = centre + shift
                 out = resolve_sides(out, pts, centre, left, self.side_scale, lefts=lefts)
             return out
+
+
+#: Half a turn about a part's long (up, y) axis, on the right of its world rotation: the body's left (+x) and
+#: front (+z) reversed (``forward``'s ``turn_torso``).
+TORSO_TURN = torch.diag(torch.tensor([-1.0, 1.0, -1.0]))
 
 
 def _scatter_parts(x: torch.Tensor, cols: list[int], num_parts: int) -> torch.Tensor:
