@@ -160,7 +160,7 @@ def test_athletic_training_source_is_the_ood_sampler_over_the_wider_range(toy_bo
         assert mixed._sources(split).fingerprint() == plain._sources(split).fingerprint()
 
 
-def test_athletic_spine_source_bends_the_spine_as_a_chain_in_half_the_draws(toy_body):
+def test_athletic_spine_source_is_the_athletic_sampler_with_half_its_draws_chained(toy_body):
     from arteq.data.poses import ATHLETIC_LIMITS_DEG
 
     mixed = BodyScanDataModule(body_model=toy_body, train_pose_mix={"athletic_spine": 1.0}, cache=False)
