@@ -44,7 +44,7 @@ class OracleFitter(CentreKeepingFitter):
     truth: dict | None = None
 
     @torch.no_grad()
-    def _network(self, clouds, turns=None, shifts=None):
+    def _network(self, clouds, turns=None, shifts=None, torso=None):
         """One scan's draws (``net_draws``): noisy labels per draw, the same perturbed pose for all."""
         s, c = self.truth, self._centre
         rng = np.random.default_rng(0)
@@ -592,7 +592,7 @@ class _RestPoseFitter(OracleFitter):
     """The oracle with every joint at rest: a start far from a posed scan."""
 
     @torch.no_grad()
-    def _network(self, clouds, turns=None, shifts=None):
+    def _network(self, clouds, turns=None, shifts=None, torso=None):
         p = super()._network(clouds, turns)
         p["local_rotmats"] = torch.eye(3).expand_as(p["local_rotmats"]).clone()
         return p
@@ -623,7 +623,7 @@ class _LostUnlessTurned(OracleFitter):
     """The oracle's answer for a turned reading of the scan (a retry's), every joint at rest for the first."""
 
     @torch.no_grad()
-    def _network(self, clouds, turns=None, shifts=None):
+    def _network(self, clouds, turns=None, shifts=None, torso=None):
         p = super()._network(clouds, turns)
         if turns is None:
             p["local_rotmats"] = torch.eye(3).expand_as(p["local_rotmats"]).clone()
@@ -635,7 +635,7 @@ def test_retry_keeps_the_fit_that_explains_the_scan_best(tiny_ckpt, body, tmp_pa
     again from turned readings (here the truth): the fit kept is the best scoring one, it is the truth's,
     its record says which; without retries the lost fit stays."""
     s = synthetic_scan(body, "test_ood", 2, 5000, offset=0.0)
-    kw = dict(ckpt=tiny_ckpt, device="cpu", anny=False, crossing=False)
+    kw = dict(ckpt=tiny_ckpt, device="cpu", anny=False, crossing=False, torso_retry=False)
     lost = _LostUnlessTurned(retries=0, **kw)
     lost.truth = s
     first = lost.fit_points(s["points"])
@@ -663,6 +663,51 @@ def test_retry_keeps_the_fit_that_explains_the_scan_best(tiny_ckpt, body, tmp_pa
     assert v2v(res) < FIT_BOUND_CM < v2v(first)
     with pytest.raises(ValueError, match="retries"):
         Fitter(ckpt=tiny_ckpt, device="cpu", anny=False, retries=-1)
+
+
+class _LostUnlessTorsoTurned(OracleFitter):
+    """The oracle's answer where the network reads the torso turned round (``torso``), every joint at rest
+    for the plain reading."""
+
+    @torch.no_grad()
+    def _network(self, clouds, turns=None, shifts=None, torso=None):
+        p = super()._network(clouds, turns)
+        self.torso_flags = None if torso is None else np.asarray(torso).copy()
+        if torso is None or not np.asarray(torso).all():
+            p["local_rotmats"] = torch.eye(3).expand_as(p["local_rotmats"]).clone()
+        return p
+
+
+def test_torso_retry_keeps_the_torso_turned_fit(tiny_ckpt, tiny_net, body, tmp_path, monkeypatch):
+    """A doubted full fit is fitted once more from the network's reading with the torso turned round (the
+    flag reaches the network for every draw of that try); that fit (here the truth's) is kept and its record
+    names the reading; ``torso_retry=False`` leaves the lost fit, and a network that reads sides itself
+    (``sides: learned``) has no such retry; a retry not better by ``RETRY_MIN_GAIN`` is not kept."""
+    s = synthetic_scan(body, "test_ood", 2, 5000, offset=0.0)
+    ckpt = write_tiny_checkpoint(tmp_path / "torso.ckpt", {**tiny_net, "sides": "torso"})
+    kw = dict(ckpt=ckpt, device="cpu", anny=False, crossing=False, retries=0)
+    off = _LostUnlessTorsoTurned(torso_retry=False, **kw)
+    off.truth = s
+    first = off.fit_points(s["points"])
+    assert first.status == "uncertain" and first.retry is None, first.message
+    f = _LostUnlessTorsoTurned(**kw)
+    assert f.torso_retry
+    f.truth = s
+    res = f.fit_points(s["points"])
+    assert res.retry["reads"] == ["first", "torso turned"] and res.retry["picked"] == 1, res.retry
+    assert f.torso_flags.all() and len(f.torso_flags) == f.net_draws  # the last batch: the turned try
+    assert "refitted" in res.quality["flags"], res.message
+
+    def v2v(r):
+        return np.linalg.norm(r.vertices - s["vertices"], axis=1).mean() * 100
+
+    assert v2v(res) < FIT_BOUND_CM < v2v(first)
+    assert not Fitter(ckpt=tiny_ckpt, device="cpu", anny=False).torso_retry  # the tiny preset: learned
+    # a retry is kept only when it scores lower by RETRY_MIN_GAIN (a share of the first fit's score)
+    gain = 1 - res.retry["scores_cm"][1] / res.retry["scores_cm"][0]
+    monkeypatch.setattr("arteq.fit.api.RETRY_MIN_GAIN", gain + 0.01)
+    kept = f.fit_points(s["points"])
+    assert kept.retry["picked"] == 0 and v2v(kept) > FIT_BOUND_CM, kept.retry
 
 
 def test_second_start_that_does_not_exist_is_named(tiny_ckpt, tmp_path):

@@ -261,7 +261,7 @@ def test_the_fitter_uncrosses_a_crossed_scan_and_says_so(body, scene, tmp_path, 
     class Uncrossed(CentreKeepingFitter):
         @torch.no_grad()
         def _network(
-            self, clouds, turns=None, shifts=None
+            self, clouds, turns=None, shifts=None, torso=None
         ):  # one scan's draws (net_draws): the same answer for each
             c, k = self._centre, len(clouds)
             tree = cKDTree(fit["vertices"] - c)

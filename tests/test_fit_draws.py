@@ -62,7 +62,7 @@ class _Recording(Fitter):
         self.centre = item["center"]
         return item
 
-    def _network(self, clouds, turns=None, shifts=None):
+    def _network(self, clouds, turns=None, shifts=None, torso=None):
         self.clouds = [c.copy() for c in clouds]
         return super()._network(clouds, turns)
 

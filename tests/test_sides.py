@@ -238,3 +238,21 @@ def test_torso_read_turned_round_mirrors_every_pair_and_turns_the_torso(sides):
         net(pts, torch.arange(120).remainder(22)[None], turn_torso=True)
     with pytest.raises(ValueError, match="turn_torso"):
         ArtEqNet(**SMALL).double().eval()(pts, turn_torso=True)
+
+
+def test_torso_turned_per_cloud_reads_each_cloud_as_alone():
+    # a [B] mask: the clouds flagged read as with turn_torso=True alone, the others as plain; a mask of the
+    # wrong length is an error
+    torch.manual_seed(0)
+    net = ArtEqNet(**SMALL, sides="torso").double().eval()
+    a = _cloud()
+    b = a @ group_rotations(torch.float64)[7].T + 0.01 * torch.randn_like(a)
+    both = torch.cat([a, b])
+    with torch.no_grad():
+        mixed = net(both, turn_torso=torch.tensor([True, False]))
+        turned, plain = net(a, turn_torso=True), net(b)
+    for key in ("part_probs", "global_rotmats", "local_rotmats", "betas"):
+        torch.testing.assert_close(mixed[key][:1], turned[key], atol=1e-10, rtol=0)
+        torch.testing.assert_close(mixed[key][1:], plain[key], atol=1e-10, rtol=0)
+    with pytest.raises(ValueError, match="one flag per cloud"):
+        net(both, turn_torso=torch.tensor([True]))

@@ -594,6 +594,7 @@ def run_people(a) -> None:
         ckpt=a.ckpt, device="cpu", points=5000, crossing=cross, refine_config=cfg, shape_betas=a.shape_betas,
         clean_config=CleanConfig.from_strings(a.clean),
         net_draws=a.net_draws, retries=a.retries, retry_above_cm=a.retry_above,
+        **({"torso_retry": False} if a.no_torso_retry else {}),
         **({"second_start": False} if a.no_second_start else {}),
     )
     fitter = Fitter(anny=True, **kw)
@@ -734,6 +735,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--net-draws", type=int, default=None, help="people: Fitter(net_draws=...)")
     ap.add_argument("--retries", type=int, default=None, help="people: Fitter(retries=...)")
     ap.add_argument("--retry-above", type=float, default=None, help="people: Fitter(retry_above_cm=...)")
+    ap.add_argument("--no-torso-retry", action="store_true", help="people: Fitter(torso_retry=False)")
     ap.add_argument("--curved", action="store_true",
                     help="people: scan the smooth surface through each mesh's vertices, not its flat faces")
     ap.add_argument("--no-second-start", action="store_true", help="people: Fitter(second_start=False)")

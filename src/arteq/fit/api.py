@@ -90,7 +90,8 @@ class FitResult:
     ``crossing``: for a full scan that tried swapped limb pairs (:mod:`arteq.fit.crossing`), the fit's
     score, each pair's score (cm; where it stopped for those in ``stopped``) and the pair taken (``""``:
     none); None when none was tried. ``retry``: for a doubtful full scan fitted again (``Fitter(retries=K)``),
-    every fit's surface score (cm; the first fit's first) and the index of the one kept; None otherwise.
+    every fit's surface score (cm; the first fit's first), which reading each fit started from (``reads``:
+    ``first``, ``retry K``, ``torso turned``) and the index of the one kept; None otherwise.
     ``clothing``: for a fit refined as the skin under clothes (``Fitter(clothing=...)``), the thickness (cm),
     the covered parts, the iterations and how far the vertices moved from the clothed fit (``moved_cm``,
     mean); None otherwise. Vertices, joints, pose, shape, point distances and the Anny export are then the
@@ -333,13 +334,19 @@ class FitNetwork(torch.nn.Module):
         self.register_buffer("centroid_matrix", body_centroid_matrix(body, net.num_parts), persistent=False)
 
     def forward(
-        self, points: torch.Tensor, turn: torch.Tensor | None = None, torso_shift: torch.Tensor | None = None
+        self,
+        points: torch.Tensor,
+        turn: torch.Tensor | None = None,
+        torso_shift: torch.Tensor | None = None,
+        turn_torso: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """``turn [B, 3, 3]`` (optional): the network reads each cloud turned by it and its outputs are turned
         back into the cloud's frame (:func:`turn_back`): another reading of the same cloud, for a network
         equivariant to a finite group of rotations only. ``torso_shift [B, 3]`` (optional, the clouds'
         frame): moves the torso centre that splits left from right (:class:`arteq.models.ArtEqNet`); for
-        networks without that centre it is ignored."""
+        networks without that centre it is ignored. ``turn_torso [B]`` bool (optional): those clouds' torso
+        read turned round (:class:`arteq.models.ArtEqNet`'s ``turn_torso``; an error for networks without
+        it)."""
         from arteq.models.placement import estimate_translation
         from arteq.models.precision import full_precision, upcast
 
@@ -347,6 +354,8 @@ class FitNetwork(torch.nn.Module):
         if torso_shift is not None and getattr(self.net, "accepts_torso_shift", False):
             shift = torso_shift.to(points.dtype)  # turned with its cloud
             kw["torso_shift"] = shift if turn is None else (turn.to(shift.dtype) @ shift[..., None])[..., 0]
+        if turn_torso is not None:
+            kw["turn_torso"] = turn_torso
         if turn is None:
             pred = self.net(points, **kw)
         else:
@@ -420,6 +429,15 @@ NET_DRAWS = 4
 #: (experiments/fitting/retries.md, last section).
 RETRIES = 1
 RETRY_ABOVE_CM = 2.0
+#: a retry is kept only when its surface score is below the first fit's by this share at least (as
+#: :attr:`arteq.fit.crossing.CrossingConfig.min_gain`): near ties are coin flips between a fit and a lost one
+#: (experiments/scan_model/spine/README.md, the torso retry).
+RETRY_MIN_GAIN = 0.005
+#: :class:`Fitter`'s ``torso_retry``: the retries of a doubtful full scan (as for :data:`RETRIES`) include
+#: one from the network's reading with the torso turned round (:class:`arteq.models.ArtEqNet`'s
+#: ``turn_torso``: the back read as the front, so every limb took its mirror's side; the lost bows,
+#: experiments/scan_model/spine/README.md), for networks that split sides in the torso's frame.
+TORSO_RETRY = True
 
 
 def retry_turns(count: int) -> np.ndarray:
@@ -513,6 +531,11 @@ class Fitter:
             written fit once more as the skin under that much cloth
             (:func:`arteq.fit.clothing.under_clothes`; experiments/fitting/clothing.md). The check judges the
             clothed fit; ``FitResult.clothing`` records the pass.
+        retries, retry_above_cm: a doubtful full scan's fit whose surface score is above
+            ``retry_above_cm`` (cm) is fitted again ``retries`` times from other readings of the scan
+            (:meth:`_retry`; ``None``: :data:`RETRIES`, :data:`RETRY_ABOVE_CM`).
+        torso_retry: those retries include one from the network's reading with the torso turned round
+            (``None``: :data:`TORSO_RETRY`; networks that do not split sides in the torso's frame never).
     """
 
     def __init__(
@@ -540,6 +563,7 @@ class Fitter:
         retries: int | None = None,
         retry_above_cm: float | None = None,
         clothing: Any = None,
+        torso_retry: bool | None = None,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
         from arteq.runtime import tune_cpu_allocator
@@ -595,6 +619,8 @@ class Fitter:
         if self.retries < 0:
             raise ValueError(f"retries must be >= 0, got {retries}")
         self.retry_above_cm = RETRY_ABOVE_CM if retry_above_cm is None else float(retry_above_cm)
+        torso_retry = TORSO_RETRY if torso_retry is None else bool(torso_retry)
+        self.torso_retry = torso_retry and getattr(self.module.net, "sides", None) in ("torso", "roots")
         self.clean = clean
         self.clean_config = clean_config or CleanConfig()
         if clothing is not None and not isinstance(clothing, ClothingConfig):
@@ -760,12 +786,14 @@ class Fitter:
 
     @torch.no_grad()
     def _network(
-        self, clouds: list[np.ndarray], turns: np.ndarray | None = None, shifts: np.ndarray | None = None
-    ) -> dict[str, torch.Tensor]:
+        self, clouds: list[np.ndarray], turns: np.ndarray | None = None, shifts: np.ndarray | None = None,
+        torso: np.ndarray | None = None,
+    ) -> dict[str, torch.Tensor]:  # fmt: skip
         def tensor(a: np.ndarray | None) -> torch.Tensor | None:
             return None if a is None else torch.as_tensor(a, dtype=torch.float32, device=self.device)
 
-        return self.module(tensor(np.stack(clouds)), tensor(turns), tensor(shifts))
+        flags = None if torso is None else torch.as_tensor(torso, dtype=torch.bool, device=self.device)
+        return self.module(tensor(np.stack(clouds)), tensor(turns), tensor(shifts), flags)
 
     @staticmethod
     def _torso_shifts(modes: list[dict[str, Any]], repeat: int = 1) -> np.ndarray | None:
@@ -794,7 +822,7 @@ class Fitter:
         results, exports = self._fit_batch(items)
         if self.clean and self.clean_config.objects and self.refine and self.check:
             self._objects(items, results, exports)
-        if self.retries and self.refine and self.check:
+        if (self.retries or self.torso_retry) and self.refine and self.check:
             self._retry(items, results, exports)
         if self.clothing is not None:  # refine is on (checked when built)
             self._under_clothes(items, results, exports)
@@ -980,9 +1008,12 @@ class Fitter:
     def _retry(self, items: list[dict[str, Any]], results: list[FitResult], exports: list[tuple]) -> None:
         """Fit again the full scans whose fit the check doubts and whose surface score is above
         ``retry_above_cm``: ``retries`` times each, from the network's reading of the scan turned by one of
-        :func:`retry_turns` (with draws of its own), every step as for the first fit; the fit with the lowest
-        surface score on the first fit's points is kept (``results`` and ``exports`` replaced in place) and
-        recorded in :attr:`FitResult.retry`. A retry kept stays ``uncertain`` (flag ``refitted``) even where
+        :func:`retry_turns` (with draws of its own), and with ``torso_retry`` once more from the first fit's
+        draws read with the torso turned round (its second start left out: the first fit had it), every step
+        as for the first fit; the retry with the lowest surface score on the first fit's points is kept where
+        that score is below the first fit's by :data:`RETRY_MIN_GAIN` (``results`` and ``exports`` replaced
+        in place) and recorded in :attr:`FitResult.retry` (``reads``:
+        which reading each score is of). A retry kept stays ``uncertain`` (flag ``refitted``) even where
         the check passes it: it was picked by its surface, which wrong vertices can explain too."""
         from arteq.fit.crossing import surface_score
 
@@ -1002,8 +1033,14 @@ class Fitter:
         if not doubted:
             return
         t0 = time.perf_counter()
-        turns, n = retry_turns(self.retries), self.retries
-        tries = [{**items[i], "retry": t + 1, "turn": turns[t]} for i in doubted for t in range(n)]
+        turns = retry_turns(self.retries)
+        reads = [{"retry": t + 1, "turn": turns[t]} for t in range(self.retries)]
+        names = ["first"] + [f"retry {t + 1}" for t in range(self.retries)]
+        if self.torso_retry:
+            reads.append({"turn_torso": True})
+            names.append("torso turned")
+        n = len(reads)
+        tries = [{**items[i], **read} for i in doubted for read in reads]
         res_t, exp_t = self._fit_batch(tries)
         seconds = (time.perf_counter() - t0) / len(doubted)
         for j, i in enumerate(doubted):
@@ -1011,9 +1048,12 @@ class Fitter:
             cands = [(own, results[i], exports[i])]
             cands += [(score(res_t[j * n + t], pts, items[i]["center"]), res_t[j * n + t], exp_t[j * n + t])
                       for t in range(n)]  # fmt: skip
-            best = int(np.argmin([c[0] for c in cands]))
+            best = 1 + int(np.argmin([c[0] for c in cands[1:]]))
+            if not cands[best][0] < (1 - RETRY_MIN_GAIN) * own:
+                best = 0
             picked = cands[best][1]
-            picked.retry = {"scores_cm": [round(float(c[0]), 4) for c in cands], "picked": best}
+            picked.retry = {"scores_cm": [round(float(c[0]), 4) for c in cands], "picked": best,
+                            "reads": names}  # fmt: skip
             if best:  # a retry the check passes stays flagged, as a crossing refit
                 self._flag_refit(picked, results[i].uncertain_reason)
             picked.timings = {**results[i].timings, "retry": seconds}
@@ -1048,7 +1088,8 @@ class Fitter:
         modes = self._scan_modes(items, ref_in)  # before the network: partial scans' torso shifts
         t_modes = time.perf_counter() - t1
         turns = self._turns(items, k)
-        pred = self._network(clouds, turns, self._torso_shifts(modes, k))
+        torso = np.repeat([bool(it.get("turn_torso")) for it in items], k)
+        pred = self._network(clouds, turns, self._torso_shifts(modes, k), torso if torso.any() else None)
         probs_draws = pred["part_probs"].float().cpu().numpy()  # [B * k, n, K] (waits for a GPU)
         if k > 1:  # the first draw's outputs; pose, shape and translation the mean of all draws'
             mean = mean_prediction(pred, k)
@@ -1078,7 +1119,8 @@ class Fitter:
         t_modes += time.perf_counter() - t1
         rows, second = [], None  # the full scans that also start from the second network, and its starts
         if self.refine and self.second is not None:
-            rows = [i for i, m in enumerate(modes) if not m["partial"]]
+            # (a retry read with the torso turned round: the first fit had the second start)
+            rows = [i for i, m in enumerate(modes) if not m["partial"] and not items[i].get("turn_torso")]
         if rows:
             t1 = time.perf_counter()
             second = self._second_starts([net_in[i] for i in rows], [near[i] for i in rows],

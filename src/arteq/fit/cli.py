@@ -57,6 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--retry-above", type=float, default=None, metavar="CM",
                     help="only fits whose surface score is above this (cm; default: "
                     "arteq.fit.api.RETRY_ABOVE_CM)")  # fmt: skip
+    ap.add_argument("--no-torso-retry", dest="torso_retry", action="store_false", default=None,
+                    help="no retry from the network's reading with the torso turned round (default: one, "
+                    "arteq.fit.api.TORSO_RETRY)")  # fmt: skip
     ap.add_argument("--clothing", type=float, default=None, metavar="CM",
                     help="the people wear clothes about CM thick over the skin (a T-shirt and "
                     "jeans: about 1; sweats: 2): fit the body under them (default: the scanned "
@@ -155,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
                       strict=args.strict, partial=args.partial, view_dir=args.view_dir,
                       crossing=args.crossing, second_start=args.second_start,
                       shape_betas=args.shape_betas, net_draws=args.net_draws, retries=args.retries,
-                      retry_above_cm=args.retry_above, clothing=clothing,
+                      retry_above_cm=args.retry_above, clothing=clothing, torso_retry=args.torso_retry,
                       clean_config=CleanConfig(objects=args.objects))  # fmt: skip
         fitter = Fitter(**kwargs)
     except (FileNotFoundError, ValueError, RuntimeError) as exc:

@@ -76,7 +76,7 @@ class ArtEqNet(nn.Module):
         gt_labels: torch.Tensor | None = None,
         fps_idx: torch.Tensor | None = None,
         torso_shift: torch.Tensor | None = None,
-        turn_torso: bool = False,
+        turn_torso: bool | torch.Tensor = False,
     ) -> dict[str, torch.Tensor]:
         """Predict parts, rotations and betas.
 
@@ -99,8 +99,8 @@ class ArtEqNet(nn.Module):
                 sides are split in its frame, so every limb's side, pooling and rotation follow; the torso
                 parts' returned ``global_rotmats`` are turned likewise (``rot_mean`` is not). Another
                 reading of a cloud whose torso the network reads back to front (the lost back bends,
-                experiments/scan_model/spine/README.md). Only with ``sides`` ``torso`` or ``roots`` and
-                predicted parts (no ``gt_labels``).
+                experiments/scan_model/spine/README.md). A ``[B]`` bool tensor turns the clouds where it is
+                true only. Only with ``sides`` ``torso`` or ``roots`` and predicted parts (no ``gt_labels``).
         Returns:
             dict with ``seg_logits [B,N,K]``, ``part_probs [B,N,K]``, ``pool_weights [B,N,K]`` (what was
             used for pooling), ``global_rotmats [B,K,3,3]``, ``rot_mean [B,K,3,3]`` (weighted chordal
@@ -116,7 +116,8 @@ class ArtEqNet(nn.Module):
         # probabilities in float32 at least (under mixed precision the logits may be bfloat16)
         part_probs = torch.softmax(seg_logits, dim=-1, dtype=upcast(seg_logits).dtype)
         side_frame = self.sides in ("torso", "roots")
-        if turn_torso and (not side_frame or gt_labels is not None):
+        turn = _torso_turns(turn_torso, points)  # None, or [B, 1, 3, 3]: TORSO_TURN or the identity
+        if turn is not None and (not side_frame or gt_labels is not None):
             raise ValueError("turn_torso needs sides 'torso' or 'roots' and predicted parts (no gt_labels)")
         if gt_labels is not None:  # stage 1: pool the ground-truth parts
             pool_weights = F.one_hot(gt_labels, self.num_parts).to(feats.dtype)
@@ -132,17 +133,17 @@ class ArtEqNet(nn.Module):
                 # The torso's frame from its parts pooled with the predicted probabilities. The torso has no
                 # side and its parents are torso parts, so its rotations are the same before and after.
                 torso = self._pose(feats, points, part_probs, parts=TORSO_PARTS)["rotmats"]
-                if turn_torso:
-                    torso = torso @ TORSO_TURN.to(torso)
+                if turn is not None:
+                    torso = torso @ turn.to(torso)
                 resolved = self._resolve_sides(seg_logits, points, part_probs, torso)
                 pool_weights = resolved.exp()  # the split the pose head was trained to pool with
                 if torso_shift is not None:
                     resolved = self._resolve_sides(seg_logits, points, part_probs, torso, torso_shift)
                 seg_logits, part_probs = resolved, resolved.exp()
             pose = self._pose(feats, points, pool_weights)
-            if turn_torso:  # the torso's own rotations as the sides were read: turned round
+            if turn is not None:  # the torso's own rotations as the sides were read: turned round
                 rot = pose["rotmats"].clone()
-                rot[:, TORSO_PARTS] = rot[:, TORSO_PARTS] @ TORSO_TURN.to(rot)
+                rot[:, TORSO_PARTS] = rot[:, TORSO_PARTS] @ turn.to(rot)
                 pose = {**pose, "rotmats": rot}
         part_feats = pose["part_feats"]
         betas = self.shape_head(part_feats.mean(dim=2))
@@ -215,6 +216,20 @@ class ArtEqNet(nn.Module):
 #: Half a turn about a part's long (up, y) axis, on the right of its world rotation: the body's left (+x) and
 #: front (+z) reversed (``forward``'s ``turn_torso``).
 TORSO_TURN = torch.diag(torch.tensor([-1.0, 1.0, -1.0]))
+
+
+def _torso_turns(turn_torso: bool | torch.Tensor, points: torch.Tensor) -> torch.Tensor | None:
+    """``forward``'s ``turn_torso`` as ``[B, 1, 3, 3]`` rotations (:data:`TORSO_TURN` where turned, the
+    identity elsewhere), or None where no cloud is turned."""
+    if not torch.is_tensor(turn_torso):
+        return TORSO_TURN.to(points.device)[None, None].expand(len(points), 1, 3, 3) if turn_torso else None
+    if tuple(turn_torso.shape) != (len(points),):
+        raise ValueError(f"turn_torso: one flag per cloud ({len(points)}), got {tuple(turn_torso.shape)}")
+    mask = turn_torso.to(device=points.device, dtype=torch.bool)
+    if not bool(mask.any()):
+        return None
+    eye = torch.eye(3, device=points.device)
+    return torch.where(mask[:, None, None, None], TORSO_TURN.to(points.device), eye)
 
 
 def _scatter_parts(x: torch.Tensor, cols: list[int], num_parts: int) -> torch.Tensor:
