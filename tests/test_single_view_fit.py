@@ -157,9 +157,9 @@ def test_a_partial_scans_network_reads_the_torso_middle_behind_its_points(anny22
     seen = []
     forward = fitter.module.forward
 
-    def recording(points, turn=None, torso_shift=None):
+    def recording(points, turn=None, torso_shift=None, turn_torso=None):
         seen.append(None if torso_shift is None else torso_shift.clone())
-        return forward(points, turn, torso_shift)
+        return forward(points, turn, torso_shift, turn_torso)
 
     fitter.module.forward = recording
     fitter.fit_points(side)
