@@ -423,10 +423,10 @@ NET_DRAWS = 4
 #: :class:`Fitter`'s ``retries`` (``arteq-fit --retries K``): a full scan's fit the check doubts and whose
 #: surface score (:func:`arteq.fit.crossing.surface_score`, cm) is above :data:`RETRY_ABOVE_CM` is fitted
 #: again K times, from the network's reading of the scan with other draws and then turned by
-#: :func:`retry_turns`, and the fit that explains the scan best is kept. One by default since 2026-12-05: on
-#: the check's labelled sets 1-2 more usable fits of 45 per seed (3 retries: 2-3) and none lost, some lost
-#: fits further off, 21 % more time there (57 % with 3), nothing on scans the check passes
-#: (experiments/fitting/retries.md, last section).
+#: :func:`retry_turns`, and the best one kept if it beats the first fit by :data:`RETRY_MIN_GAIN`. One by
+#: default since 2026-12-05: on the check's labelled sets 1-2 more usable fits of 45 per seed (3 retries:
+#: 2-3) and none lost, some lost fits further off, 21 % more time there (57 % with 3), nothing on scans the
+#: check passes (experiments/fitting/retries.md, last section).
 RETRIES = 1
 RETRY_ABOVE_CM = 2.0
 #: a retry is kept only when its surface score is below the first fit's by this share at least (as
@@ -1012,9 +1012,9 @@ class Fitter:
         draws read with the torso turned round (its second start left out: the first fit had it), every step
         as for the first fit; the retry with the lowest surface score on the first fit's points is kept where
         that score is below the first fit's by :data:`RETRY_MIN_GAIN` (``results`` and ``exports`` replaced
-        in place) and recorded in :attr:`FitResult.retry` (``reads``:
-        which reading each score is of). A retry kept stays ``uncertain`` (flag ``refitted``) even where
-        the check passes it: it was picked by its surface, which wrong vertices can explain too."""
+        in place) and recorded in :attr:`FitResult.retry` (``reads``: which reading each score is of). A
+        retry kept stays ``uncertain`` (flag ``refitted``) even where the check passes it: it was picked by
+        its surface, which wrong vertices can explain too."""
         from arteq.fit.crossing import surface_score
 
         def score(r: FitResult, pts: np.ndarray, centre: np.ndarray) -> float:
