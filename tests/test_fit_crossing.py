@@ -18,21 +18,12 @@ from arteq.fit.crossing import (
     swap_start,
 )
 from arteq.fit.refine import RefineConfig, body_tables
+from fit_helpers import posed as _posed
 
 
 @pytest.fixture(scope="module")
 def body(anny22):
     return anny22
-
-
-def _posed(body, pose, betas, transl):
-    with torch.no_grad():
-        o = body(
-            betas=torch.as_tensor(betas, dtype=torch.float32)[None],
-            pose=torch.as_tensor(pose, dtype=torch.float32)[None],
-            transl=torch.as_tensor(transl, dtype=torch.float32)[None],
-        )
-    return {k: getattr(o, k)[0].double().numpy() for k in ("vertices", "joints", "global_rotmats")}
 
 
 @pytest.fixture(scope="module")
@@ -240,10 +231,8 @@ def test_the_fitter_uncrosses_a_crossed_scan_and_says_so(body, scene, tmp_path, 
     with the step and stays uncrossed without it; the npz, json and summary say which pair was swapped."""
     import json
 
-    from scipy.spatial import cKDTree
-
     from arteq.fit.files import fit_files
-    from fit_helpers import CentreKeepingFitter, write_tiny_checkpoint
+    from fit_helpers import reading_of, write_tiny_checkpoint
 
     s, fit = scene
     crossed = _posed(
@@ -258,20 +247,8 @@ def test_the_fitter_uncrosses_a_crossed_scan_and_says_so(body, scene, tmp_path, 
     pts = pts.double().numpy()
     ckpt = write_tiny_checkpoint(tmp_path / "tiny.ckpt", tiny_net)
 
-    class Uncrossed(CentreKeepingFitter):
-        @torch.no_grad()
-        def _network(
-            self, clouds, turns=None, shifts=None, torso=None
-        ):  # one scan's draws (net_draws): the same answer for each
-            c, k = self._centre, len(clouds)
-            tree = cKDTree(fit["vertices"] - c)
-            lab = np.stack([self.vertex_parts[tree.query(p)[1]] for p in clouds])
-            return {
-                "part_probs": torch.as_tensor(np.eye(22)[lab] * 0.9 + 0.1 / 22, dtype=torch.float32),
-                "local_rotmats": torch.as_tensor(s["pose"], dtype=torch.float32)[None].expand(k, -1, -1, -1),
-                "betas": torch.as_tensor(s["betas"], dtype=torch.float32)[None].expand(k, -1),
-                "transl": torch.as_tensor(s["transl"] - c, dtype=torch.float32)[None].expand(k, -1),
-            }
+    # the "network" reads the scan the way the torso-frame sides do: the uncrossed pose and labels
+    Uncrossed = reading_of(fit["vertices"], s["pose"], s["betas"], s["transl"])
 
     v2v = {}
     for on in (True, False):

@@ -82,11 +82,14 @@ def pairs_plus(joints, doubtful, config=None):
     return [*_pairs(joints, doubtful, config), "?"]  # "?": the reach starts, filled in with the points
 
 
-def try_with_reach(body, points, fit, subset, tries, refine_config, config=None, keep_all=False):
-    """The swaps as usual, then reach starts from each scan's picked fit (a second round)."""
+def try_with_reach(body, points, fit, subset, tries, refine_config, config=None, keep_all=False, extra=None):
+    """The swaps as usual, then reach starts from each scan's picked fit (a second round). (Since 2026-12-07
+    the fitter has reach starts of its own, ``arteq.fit.reach``, passed as ``extra``; this probe's are
+    the earlier design of experiments/fitting/off_fit.md.)"""
     from arteq.fit.refine import branch_parts
 
-    first = _try(body, points, fit, subset, [[p for p in t if p != "?"] for t in tries], refine_config, config)
+    swaps = [[p for p in t if p != "?"] for t in tries]
+    first = _try(body, points, fit, subset, swaps, refine_config, config, extra=extra)
     fit2 = {k: v.detach().clone() for k, v in fit.items()}
     for i, p in enumerate(first):
         if p["taken"]:

@@ -121,6 +121,10 @@ def evaluate(ckpt: str, scans: list[dict], fit: bool, threads: int, retries: int
             f = full.fit_points(s["points"])
             row["fit_s"] = time.perf_counter() - t
             row["status"] = f.status
+            if f.crossing:  # the crossed-limb step: the fit's score before it and what it took
+                row["crossing"] = {"score_cm": f.crossing["score_cm"], "taken": f.crossing["taken"]}
+            if f.retry:
+                row["retry"] = {"scores_cm": f.retry["scores_cm"], "picked": f.retry["picked"]}
             row["v2v_cm"] = (
                 float(np.linalg.norm(f.vertices - s["vertices"], axis=1).mean() * 100)
                 if f.vertices is not None else float("nan")

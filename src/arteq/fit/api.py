@@ -29,6 +29,8 @@ from arteq.fit.clothing import ClothingConfig
 from arteq.fit.conditions import denoise, scan_conditions
 from arteq.fit.crossing import CrossingConfig, pairs_to_try, try_swaps
 from arteq.fit.quality import REFUSE_FLAGS, QualityThresholds, describe_flags, fit_quality, verdict
+from arteq.fit.reach import PREFIX as REACH
+from arteq.fit.reach import reach_starts
 from arteq.fit.refine import RefineConfig, body_tables, refine, refine_iteration
 from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_points
 
@@ -505,7 +507,9 @@ class Fitter:
         crossing: crossed limbs on full scans (:mod:`arteq.fit.crossing`): ``True`` (default,
             :class:`arteq.fit.crossing.CrossingConfig`), a ``CrossingConfig``, or ``False``: a refined fit
             the check doubts, or one with a left / right pair of limb segments close together, is refitted
-            with each pair swapped and the swap kept when it explains the scan better.
+            with each pair swapped and the swap kept when it explains the scan better; with
+            ``CrossingConfig.reach`` also from each limb placed on the points the fit leaves off
+            (:mod:`arteq.fit.reach`).
         second_start: a second network whose pose starts a second refinement of every full scan; the fit
             that explains the scan better (:func:`arteq.fit.crossing.surface_score`) is kept, the worse
             start stopping as soon as it is clearly worse (:data:`SECOND_START_STOPS`;
@@ -1425,6 +1429,7 @@ class Fitter:
         t0 = time.perf_counter()
         n = len(ref_in)
         tries: list[list[str]] = [[] for _ in range(n)]
+        extra: list[dict[str, np.ndarray]] = [{} for _ in range(n)]  # limbs placed on off-fit points
         doubtful = [""] * n
         checked: list[dict | None] = [None] * n
         joints = fit["joints"].detach().double().cpu().numpy()
@@ -1441,14 +1446,17 @@ class Fitter:
                 continue
             doubtful[i] = describe_flags(q) if verdict(q["flags"]) == "uncertain" else ""
             tries[i] = pairs_to_try(joints[i], bool(doubtful[i]), self.crossing)
-        if not any(tries):
+            if self.crossing.reach and doubtful[i] and "off_fit_limb" in q["flags"]:
+                extra[i] = self._reach(ref_in[i], fit, i)
+        if not any(tries) and not any(extra):
             return [None] * n, [0.0] * n, checked
-        picked = try_swaps(self.body, ref_in, fit, self.subset, tries, self.refine_config, self.crossing)
+        picked = try_swaps(self.body, ref_in, fit, self.subset, tries, self.refine_config, self.crossing,
+                           extra=extra)  # fmt: skip
         for k in fit:
             fit[k] = fit[k].detach().clone()
         records: list[dict | None] = [None] * n
         for i, p in enumerate(picked):
-            if not tries[i]:
+            if not tries[i] and not extra[i]:
                 continue
             records[i] = {"score_cm": round(p["score"], 4), "tried_cm": {k: round(v, 4) for k, v in
                           p["tried"].items()}, "stopped": p.get("stopped", {}), "taken": p["taken"],
@@ -1457,8 +1465,43 @@ class Fitter:
                 checked[i] = None
                 for k in fit:
                     fit[k][i] = p[k].to(fit[k].dtype)
-        seconds = (time.perf_counter() - t0) / max(1, sum(bool(t) for t in tries))
-        return records, [seconds if t else 0.0 for t in tries], checked
+        for _ in range(self.crossing.reach_rounds - 1):  # a limb placed: another may still be off
+            again = [{} for _ in range(n)]
+            for i, p in enumerate(picked):
+                if p["taken"].startswith(REACH):
+                    again[i] = self._reach(ref_in[i], fit, i)
+            if not any(again):
+                break
+            picked = try_swaps(self.body, ref_in, fit, self.subset, [[] for _ in range(n)],
+                               self.refine_config, self.crossing, extra=again)  # fmt: skip
+            for i, p in enumerate(picked):
+                if not again[i]:
+                    p["taken"] = ""
+                    continue
+                rec = records[i]
+                rec["tried_cm"].update({f"{k} (then)": round(v, 4) for k, v in p["tried"].items()})
+                if p["taken"]:
+                    rec["taken"] += "+" + p["taken"]
+                    for k in fit:
+                        fit[k][i] = p[k].to(fit[k].dtype)
+        seconds = (time.perf_counter() - t0) / max(1, sum(bool(t or e) for t, e in zip(tries, extra)))
+        return records, [seconds if t or e else 0.0 for t, e in zip(tries, extra)], checked
+
+    def _reach(self, points: np.ndarray, fit: dict, i: int) -> dict[str, np.ndarray]:
+        """:func:`arteq.fit.reach.reach_starts` of row ``i`` of ``fit`` (the check's off-fit distances); none
+        for a fit whose surface score is above ``CrossingConfig.reach_max_score_cm``."""
+        from arteq.fit.crossing import surface_score
+
+        def row(k: str) -> np.ndarray:
+            return fit[k][i].detach().double().cpu().numpy()
+
+        if surface_score(points, row("vertices"), self.subset) > self.crossing.reach_max_score_cm:
+            return {}
+        return reach_starts(
+            points, row("vertices"), row("joints"), row("local_rotmats"), row("global_rotmats"),
+            self.vertex_parts, self.thresholds.off_fit_cm / 100, self.thresholds.off_link_cm / 100,
+            self.crossing.reach_min_points,
+        )  # fmt: skip
 
     def _smooth_for_network(self, item: dict[str, Any]) -> bool:
         """Whether a scan reaches the network smoothed: a full surface (no camera, not one-sided) noisier

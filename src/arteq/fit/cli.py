@@ -83,8 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="Anny phenotype, pose and body measurements per fit (default: when the anny "
                     "package is installed and the body is an Anny body; --anny: required)")  # fmt: skip
     ap.add_argument("--crossing", action=argparse.BooleanOptionalAction, default=True,
-                    help="full scans: refit a doubtful fit with left / right limb pairs swapped, keep a "
-                    "swap that explains the scan better (crossed arms; default: on)")  # fmt: skip
+                    help="full scans: refit a doubtful fit with left / right limb pairs swapped, and with "
+                    "a lost limb placed on the points off the fit; keep one that explains the scan better "
+                    "(crossed arms; default: on)")  # fmt: skip
     ap.add_argument("--second-start", default=None, metavar="MODEL",
                     help="full scans: also refine from this model's pose and keep the fit that explains the "
                     "scan better (default: anny22 for a model on the all-ages body)")  # fmt: skip

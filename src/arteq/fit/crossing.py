@@ -83,6 +83,15 @@ class CrossingConfig:
     #: lost acrobatic fits it starts nearer the truth, 39 -> 20 cm V2V on a bow, but refines to a worse
     #: surface score than the fit, so it is never kept; experiments/fitting/lost_fits.md)
     all_limbs: bool = False
+    #: also try each limb placed on the largest group of scan points off the fit (:mod:`arteq.fit.reach`),
+    #: for a fit the check doubts with such a group (``off_fit_limb``) of at least ``reach_min_points``; a
+    #: limb taken, the fit tries again from there (``reach_rounds`` rounds in all: a second limb off). Only
+    #: where the fit scores at most ``reach_max_score_cm``: above it the fit is lost as a whole, and the score
+    #: took limbs placed wrong over it (a plough 17.6 -> 42.0 cm; experiments/scan_model/spine/reach/)
+    reach: bool = True
+    reach_min_points: int = 30
+    reach_rounds: int = 2
+    reach_max_score_cm: float = 3.0
 
     @classmethod
     def from_strings(cls, items: list[str] | tuple[str, ...], **base) -> CrossingConfig:
@@ -179,6 +188,7 @@ def try_swaps(
     refine_config,
     config: CrossingConfig | None = None,
     keep_all: bool = False,
+    extra: list[dict[str, np.ndarray]] | None = None,
 ) -> list[dict]:
     """Refine every swapped start of ``tries`` (one batch) and pick, per scan, the swap to keep.
 
@@ -187,6 +197,8 @@ def try_swaps(
         fit: the refined fits, ``local_rotmats [B, 22, 3, 3]``, ``global_rotmats``, ``joints [B, 22, 3]``,
             ``vertices [B, V, 3]``, ``betas [B, nb]``, ``transl [B, 3]``.
         tries: per scan, the pairs to try (empty: none).
+        extra: per scan, more starts to try beside the swaps: name -> local rotations ``[22, 3, 3]`` (e.g.
+            :func:`arteq.fit.reach.reach_starts`), picked as the swaps are.
         refine_config: the fitter's :class:`arteq.fit.refine.RefineConfig` (iterations, gating and the
             kernel's start replaced by the crossing's).
     Returns:
@@ -208,7 +220,8 @@ def try_swaps(
         verts = fit["vertices"][i].detach().double().cpu().numpy()
         score = surface_score(points[i], verts, subset)
         out.append({"tried": {}, "score": score, "taken": ""})
-        if not pairs or score > cfg.max_score_cm:
+        more = extra[i] if extra else {}
+        if not (pairs or more) or score > cfg.max_score_cm:
             continue
         local = fit["local_rotmats"][i].detach().double().cpu().numpy()
         grot = fit["global_rotmats"][i].detach().double().cpu().numpy()
@@ -218,6 +231,9 @@ def try_swaps(
         for pair in pairs:
             rows.append((i, pair))
             starts.append(swap_start(local, grot, joints, pair))
+        for name, start in more.items():
+            rows.append((i, name))
+            starts.append(np.asarray(start, dtype=np.float64))
     if not rows:
         return out
     idx = [i for i, _ in rows]
