@@ -32,6 +32,7 @@ from arteq.fit.quality import REFUSE_FLAGS, QualityThresholds, describe_flags, f
 from arteq.fit.reach import PREFIX as REACH
 from arteq.fit.reach import reach_starts
 from arteq.fit.refine import RefineConfig, body_tables, refine, refine_iteration
+from arteq.fit.torso_turns import torso_starts
 from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_points
 
 #: Status values of a :class:`FitResult`: ``ok``; ``uncertain`` (a body, but the check doubts the fit:
@@ -1448,7 +1449,7 @@ class Fitter:
             tries[i] = pairs_to_try(joints[i], bool(doubtful[i]), self.crossing)
             if self.crossing.reach and doubtful[i] and "off_fit_limb" in q["flags"]:
                 extra[i] = self._reach(ref_in[i], fit, i)
-        if not any(tries) and not any(extra):
+        if not any(tries) and not any(extra) and not (self.crossing.torso and any(doubtful)):
             return [None] * n, [0.0] * n, checked
         picked = try_swaps(self.body, ref_in, fit, self.subset, tries, self.refine_config, self.crossing,
                            extra=extra)  # fmt: skip
@@ -1484,8 +1485,64 @@ class Fitter:
                     rec["taken"] += "+" + p["taken"]
                     for k in fit:
                         fit[k][i] = p[k].to(fit[k].dtype)
-        seconds = (time.perf_counter() - t0) / max(1, sum(bool(t or e) for t, e in zip(tries, extra)))
-        return records, [seconds if t or e else 0.0 for t, e in zip(tries, extra)], checked
+        turned = self._turn_torso(ref_in, fit, doubtful, records, checked)
+        went = [bool(t or e or u) for t, e, u in zip(tries, extra, turned)]
+        seconds = (time.perf_counter() - t0) / max(1, sum(went))
+        return records, [seconds if w else 0.0 for w in went], checked
+
+    def _turn_torso(
+        self, ref_in: list[np.ndarray], fit: dict, doubtful: list[str], records: list[dict | None],
+        checked: list[dict | None],
+    ) -> list[bool]:  # fmt: skip
+        """The doubted fits of ``fit`` lost as a whole (surface score above
+        ``CrossingConfig.reach_max_score_cm``) refined again from their lower torso turned
+        (:func:`arteq.fit.torso_turns.torso_starts`), ``CrossingConfig.torso_rounds`` rounds (after the
+        first, a fit kept scoring below that gets its limbs placed instead: :meth:`_reach`); ``fit``'s rows,
+        ``records`` (``tried_cm`` keys ``"<start> (torso R)"``, round R) and ``checked`` updated where a start
+        is kept. Returns which scans tried."""
+        import dataclasses
+        import math
+
+        from arteq.fit.crossing import surface_score
+
+        n = len(ref_in)
+        cfg = self.crossing
+        tried = [False] * n
+        if not cfg.torso:
+            return tried
+        rc = dataclasses.replace(cfg, iters=cfg.torso_iters, max_score_cm=math.inf)
+        going = [bool(d) for d in doubtful]
+        for rnd in range(cfg.torso_rounds):
+            extra: list[dict[str, np.ndarray]] = [{} for _ in range(n)]
+            for i in range(n):
+                if not going[i]:
+                    continue
+                verts = fit["vertices"][i].detach().double().cpu().numpy()
+                if surface_score(ref_in[i], verts, self.subset) > cfg.reach_max_score_cm:
+                    extra[i] = torso_starts(fit["global_rotmats"][i].detach().double().cpu().numpy())
+                elif rnd > 0:  # the torso kept has brought the fit in: a limb may still be off
+                    extra[i] = self._reach(ref_in[i], fit, i)
+            if not any(extra):
+                break
+            none = [[] for _ in range(n)]
+            picked = try_swaps(self.body, ref_in, fit, self.subset, none, self.refine_config, rc, extra=extra)
+            for i, p in enumerate(picked):
+                going[i] = bool(extra[i] and p["taken"])
+                if not extra[i]:
+                    continue
+                tried[i] = True
+                if records[i] is None:
+                    records[i] = {"score_cm": round(p["score"], 4), "tried_cm": {}, "stopped": {},
+                                  "taken": "", "first_doubt": doubtful[i]}  # fmt: skip
+                rec, tag = records[i], f" (torso {rnd + 1})"
+                rec["tried_cm"].update({k + tag: round(v, 4) for k, v in p["tried"].items()})
+                rec["stopped"].update({k + tag: v for k, v in p.get("stopped", {}).items()})
+                if p["taken"]:
+                    rec["taken"] += ("+" if rec["taken"] else "") + p["taken"] + tag
+                    checked[i] = None
+                    for k in fit:
+                        fit[k][i] = p[k].to(fit[k].dtype)
+        return tried
 
     def _reach(self, points: np.ndarray, fit: dict, i: int) -> dict[str, np.ndarray]:
         """:func:`arteq.fit.reach.reach_starts` of row ``i`` of ``fit`` (the check's off-fit distances); none

@@ -92,6 +92,15 @@ class CrossingConfig:
     reach_min_points: int = 30
     reach_rounds: int = 2
     reach_max_score_cm: float = 3.0
+    #: a fit the check doubts that scores above ``reach_max_score_cm`` (lost as a whole: a plough, a wheel, a
+    #: bow read with the pelvis upside down) also tries its lower torso turned (:mod:`arteq.fit.torso_turns`),
+    #: each start refined ``torso_iters`` iterations (a pelvis turned by a half turn is not refined back in
+    #: 30), ``torso_rounds`` rounds: the next from the fit kept, its torso turned again while it scores above
+    #: ``reach_max_score_cm``, else its limbs placed (``reach``); kept by the ``min_gain`` rule, whatever the
+    #: fit's score (``max_score_cm`` does not apply); experiments/scan_model/spine/torso/
+    torso: bool = True
+    torso_iters: int = 60
+    torso_rounds: int = 2
 
     @classmethod
     def from_strings(cls, items: list[str] | tuple[str, ...], **base) -> CrossingConfig:
