@@ -19,12 +19,11 @@ one only when its surface score is clearly lower.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 
 from arteq.body.skeleton import JOINT_NAMES, NUM_JOINTS, global_to_local
+from arteq.geometry.rotations import euler_to_rotmat
 
 _J = {n: i for i, n in enumerate(JOINT_NAMES)}
 #: the parts turned together, from the pelvis up
@@ -34,24 +33,16 @@ CHAINS: dict[str, tuple[int, ...]] = {
     "to_spine2": (_J["pelvis"], _J["spine1"], _J["spine2"]),
     "to_spine3": (_J["pelvis"], _J["spine1"], _J["spine2"], _J["spine3"]),
 }
-
-
-def _about(axis: int, degrees: float) -> np.ndarray:
-    a = math.radians(degrees)
-    c, s = math.cos(a), math.sin(a)
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    m = np.eye(3)
-    m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
-    return m
-
-
 #: turns in a part's own frame (the rest pose's axes: x left-right, y up, z forward)
 TURNS: dict[str, np.ndarray] = {
-    "pitch90": _about(0, 90.0),
-    "pitch-90": _about(0, -90.0),
-    "pitch180": _about(0, 180.0),
-    "turn180": _about(1, 180.0),
-    "roll180": _about(2, 180.0),
+    name: euler_to_rotmat(torch.tensor(angles, dtype=torch.float64)).numpy()
+    for name, angles in {
+        "pitch90": (90.0, 0.0, 0.0),
+        "pitch-90": (-90.0, 0.0, 0.0),
+        "pitch180": (180.0, 0.0, 0.0),
+        "turn180": (0.0, 180.0, 0.0),
+        "roll180": (0.0, 0.0, 180.0),
+    }.items()
 }
 #: the prefix of a torso start's name in the crossed-limb step's records (``torso_to_spine2_pitch180``)
 PREFIX = "torso_"
