@@ -570,6 +570,36 @@ def test_refinement_settings_from_the_command_line(tiny_ckpt, body, tmp_path, ca
     assert np.isfinite(np.load(out / "scan.npz")["vertices"]).all()
 
 
+def test_crossing_settings_from_the_command_line(tiny_ckpt, body, tmp_path, monkeypatch, capsys):
+    """``--crossing-set KEY=VALUE`` reaches the fitter's CrossingConfig; a bad key, or the option with
+    ``--no-crossing``: a clear error, no output."""
+    from arteq.fit import api
+
+    s = synthetic_scan(body, "test_id", 1, 1000, offset=1.0)
+    path = write_cloud(tmp_path / "scan.ply", s["points"])
+    base = [str(path), "--ckpt", str(tiny_ckpt), "--no-check", "--points", "800", "--iters", "3",
+            "--device", "cpu", "--no-preview"]  # fmt: skip
+    assert cli_main([*base, "--out", str(tmp_path / "bad"), "--crossing-set", "torso_twice=true"]) == 2
+    assert "torso_twice" in capsys.readouterr().err
+    bad = [*base, "--out", str(tmp_path / "bad"), "--no-crossing", "--crossing-set", "torso_once=true"]
+    assert cli_main(bad) == 2
+    assert "cannot go with --no-crossing" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+    made = []
+
+    class Recording(api.Fitter):
+        def __init__(self, **kw):
+            made.append(kw["crossing"])
+            super().__init__(**kw)
+
+    monkeypatch.setattr(api, "Fitter", Recording)
+    out = tmp_path / "fits"
+    opts = ["--crossing-set", "torso_once=true", "--crossing-set", "torso_iters=40"]
+    assert cli_main([*base, "--out", str(out), *opts]) == 0
+    assert made[0].torso_once is True and made[0].torso_iters == 40 and made[0].iters == 30, made
+    assert np.isfinite(np.load(out / "scan.npz")["vertices"]).all()
+
+
 class _StandInSecond:
     """A stand-in second network (``Fitter.second``): the ground truth of ``fitter.truth`` as
     :class:`OracleFitter` gives it, or the same with every joint at rest (``rest=True``)."""

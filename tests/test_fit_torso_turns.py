@@ -104,3 +104,38 @@ def test_the_fitter_turns_a_torso_read_upside_down_back_and_says_so(body, tmp_pa
     assert f"{PREFIX}to_spine2_pitch180 (torso 1)" in rec[True]["tried_cm"]
     assert not any(PREFIX in k for k in rec[False].get("tried_cm", {})), rec[False]
     assert v2v[True] < 1.5 < 3.0 < v2v[False], v2v
+
+
+def test_torso_once_turns_the_kept_fit_only(body, tmp_path, tiny_net):
+    """``CrossingConfig.torso_once``: the same upside-down reading, with the retries on: the first fit and the
+    retries skip the torso step, the fit the retries keep takes it once (its own seconds), and the fit comes
+    back as with the step in every fit."""
+    from arteq.fit.crossing import CrossingConfig
+    from arteq.fit.demo import synthetic_scan
+    from arteq.geometry.sampling import sample_surface
+    from fit_helpers import reading_of, write_tiny_checkpoint
+
+    s = synthetic_scan(body, "test_id", 2, 5000, offset=0.0, rotate=True)
+    truth = _posed(body, s["pose"], s["betas"], s["transl"])
+    g = truth["global_rotmats"].copy()
+    low = list(CHAINS["to_spine2"])
+    g[low] = g[low] @ TURNS["pitch180"].T
+    pose = global_to_local(torch.as_tensor(g)).numpy()
+    read = _posed(body, pose, s["betas"], s["transl"])
+    gen = torch.Generator().manual_seed(5)
+    pts, _, _ = sample_surface(
+        torch.as_tensor(truth["vertices"], dtype=torch.float32), body.faces, 5000, gen, noise_std=0.003
+    )
+    ckpt = write_tiny_checkpoint(tmp_path / "tiny.ckpt", tiny_net)
+    Upside = reading_of(read["vertices"], pose, s["betas"], s["transl"])
+    f = Upside(ckpt=ckpt, device="cpu", anny=False, retries=1, crossing=CrossingConfig(torso_once=True))
+    assert f._torso_deferred
+    r = f.fit_points(pts.double().numpy())
+    v2v = float(np.linalg.norm(r.vertices - truth["vertices"], axis=1).mean() * 100)
+    assert r.retry is not None and "torso" in r.timings, (r.retry, r.timings)
+    assert min(r.retry["scores_cm"]) > 3.0, r.retry  # no fit before the kept one was turned
+    assert f"{PREFIX}to_spine2_pitch180 (torso 1)" in r.crossing["taken"].split("+"), r.crossing
+    once = [k for k in r.crossing["tried_cm"] if k.startswith(PREFIX) and k.endswith("(torso 1)")]
+    assert len(once) == 20, r.crossing["tried_cm"]
+    assert r.status == "uncertain" and "refitted" in r.quality["flags"], r.quality["flags"]
+    assert v2v < 1.5, v2v

@@ -20,7 +20,7 @@ per seed, so one lost scan moves its group's mean by centimetres. Here every tem
 that its design did not see.
 
     OMP_NUM_THREADS=1 python experiments/scan_model/acro_eval.py --ckpt CKPT [--bodies 8] [--fit] \
-        [--retries K] [--json OUT.json] [--templates bow,pike]
+        [--retries K] [--crossing KEY=VALUE ...] [--fit-seed S] [--json OUT.json] [--templates bow,pike]
 """
 
 from __future__ import annotations
@@ -99,12 +99,23 @@ def torso_error_deg(pred: np.ndarray, true: np.ndarray) -> float:
     return math.degrees(float(roma.rotmat_geodesic_distance(a, b)))
 
 
-def evaluate(ckpt: str, scans: list[dict], fit: bool, threads: int, retries: int | None = None) -> list[dict]:
+def evaluate(
+    ckpt: str,
+    scans: list[dict],
+    fit: bool,
+    threads: int,
+    retries: int | None = None,
+    crossing: tuple = (),
+    fit_seed: int = 0,
+) -> list[dict]:
     from arteq.fit import Fitter
 
     torch.set_num_threads(threads)
     net = Fitter(ckpt, refine=False, check=False, clean=False, second_start=False, crossing=False, anny=False)
-    full = Fitter(ckpt, anny=False, retries=retries) if fit else None
+    from arteq.fit.crossing import CrossingConfig
+
+    cross = CrossingConfig.from_strings(list(crossing)) if crossing else True
+    full = Fitter(ckpt, anny=False, retries=retries, crossing=cross, seed=fit_seed) if fit else None
     rows = []
     for s in scans:
         r = net.fit_points(s["points"])
@@ -160,6 +171,10 @@ def main() -> None:
     ap.add_argument("--fit", action="store_true")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--retries", type=int, default=None, help="with --fit: Fitter(retries=...)")
+    ap.add_argument("--crossing", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="with --fit: CrossingConfig fields")  # fmt: skip
+    ap.add_argument("--fit-seed", type=int, default=0,
+                    help="with --fit: Fitter(seed=...), the fitter's resampling of each scan")  # fmt: skip
     ap.add_argument("--json")
     a = ap.parse_args()
     t = time.perf_counter()
@@ -167,7 +182,7 @@ def main() -> None:
     if a.templates:
         templates = {k: templates[k] for k in a.templates.split(",")}
     scans = make_scans(a.bodies, templates)
-    rows = evaluate(a.ckpt, scans, a.fit, a.threads, a.retries)
+    rows = evaluate(a.ckpt, scans, a.fit, a.threads, a.retries, a.crossing, a.fit_seed)
     text = summary(rows)
     print(f"{a.ckpt}: {len(rows)} scans, {time.perf_counter() - t:.0f} s\n\n{text}")
     if a.json:

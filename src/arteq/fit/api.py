@@ -1048,6 +1048,7 @@ class Fitter:
         tries = [{**items[i], **read} for i in doubted for read in reads]
         res_t, exp_t = self._fit_batch(tries)
         seconds = (time.perf_counter() - t0) / len(doubted)
+        kept = []  # (scan, the reading of the fit kept, its score)
         for j, i in enumerate(doubted):
             pts, own = first[i]
             cands = [(own, results[i], exports[i])]
@@ -1064,6 +1065,65 @@ class Fitter:
             picked.timings = {**results[i].timings, "retry": seconds}
             picked.timings["total"] += seconds
             results[i], exports[i] = picked, cands[best][2]
+            kept.append((i, reads[best - 1] if best else {}, cands[best][0]))
+        if self._torso_deferred:
+            self._torso_once(items, results, exports, kept)
+
+    @property
+    def _torso_deferred(self) -> bool:
+        """The torso step left out of every fit but the one the retries keep (``CrossingConfig.torso_once``
+        with retries on: :meth:`_torso_once`)."""
+        c = self.crossing
+        retrying = (self.retries or self.torso_retry) and self.refine and self.check
+        return bool(c is not None and c.torso and c.torso_once and retrying)
+
+    def _torso_once(
+        self, items: list[dict[str, Any]], results: list[FitResult], exports: list[tuple],
+        kept: list[tuple[int, dict, float]],
+    ) -> None:  # fmt: skip
+        """The torso step (:meth:`_turn_torso`) once, on each fit the retries kept (``kept``: scan, the
+        reading it came from, its surface score in cm) that the check still doubts and that scores above
+        ``CrossingConfig.reach_max_score_cm``: the scan read again the same way (the same part labels), the
+        fit itself neither refined nor restarted, then its torso turned. A start taken replaces the fit
+        (``results`` and ``exports`` in place, flagged as a refit); what was tried joins
+        :attr:`FitResult.crossing` either way and the seconds are ``timings["torso"]``."""
+        import roma
+
+        rows, tries = [], []
+        for i, read, score in kept:
+            r = results[i]
+            if not r.uncertain_reason or not score > self.crossing.reach_max_score_cm:
+                continue
+            betas, pose_aa, _ = exports[i]
+            f64 = torch.float64
+            start = {"local_rotmats": roma.rotvec_to_rotmat(torch.as_tensor(pose_aa, dtype=f64)),
+                     "betas": torch.as_tensor(betas, dtype=f64),
+                     "transl": torch.as_tensor(r.transl_m - items[i]["center"], dtype=f64)}  # fmt: skip
+            rows.append(i)
+            tries.append({**items[i], **read, "start_fit": start})
+        if not tries:
+            return
+        t0 = time.perf_counter()
+        res_t, exp_t = self._fit_batch(tries)
+        seconds = (time.perf_counter() - t0) / len(tries)
+        for i, r2, e2 in zip(rows, res_t, exp_t, strict=True):
+            r, step = results[i], r2.crossing
+            r.timings["torso"] = seconds
+            r.timings["total"] += seconds
+            if step is None:  # the pass's own check no longer doubts it: nothing tried
+                continue
+            rec = dict(r.crossing or {"score_cm": step["score_cm"], "tried_cm": {}, "taken": ""})
+            rec["tried_cm"] = {**rec["tried_cm"], **step["tried_cm"]}
+            rec["stopped"] = {**rec.get("stopped", {}), **step.get("stopped", {})}
+            rec["first_doubt"] = rec.get("first_doubt") or step["first_doubt"]
+            if step["taken"]:
+                rec["taken"] = "+".join(t for t in (rec["taken"], step["taken"]) if t)
+                r2.crossing, r2.retry, r2.timings = rec, r.retry, dict(r.timings)
+                r2.start_hypothesis = r.start_hypothesis
+                self._flag_refit(r2, r.uncertain_reason)
+                results[i], exports[i] = r2, e2
+            else:
+                r.crossing = rec
 
     def _fit_batch(self, items: list[dict[str, Any]]) -> tuple[list[FitResult], list[tuple]]:
         """Fit a batch of :meth:`prepare` outputs without the Anny export; also returns each fit's
@@ -1119,11 +1179,18 @@ class Fitter:
         probs_ref = np.stack([point_probs(i, ref_in[i]) for i in range(len(items))])
         t_net = time.perf_counter() - t0 - t_modes
         init = {"local_rotmats": pred["local_rotmats"], "betas": pred["betas"], "transl": pred["transl"]}
+        given = [it.get("start_fit") for it in items]  # fits to run the torso step on (:meth:`_torso_once`)
+        fixed = given[0] is not None
+        if any((g is None) == fixed for g in given):
+            raise ValueError("a batch holds items with a given fit (start_fit) and items without")
+        if fixed:  # that fit, neither refined nor started again: only its torso step follows
+            init = {k: torch.stack([torch.as_tensor(g[k]) for g in given]).to(self.device) for k in init}
         t1 = time.perf_counter()
-        self._place_partial(modes, net_in, pred, init)
+        if not fixed:
+            self._place_partial(modes, net_in, pred, init)
         t_modes += time.perf_counter() - t1
         rows, second = [], None  # the full scans that also start from the second network, and its starts
-        if self.refine and self.second is not None:
+        if self.refine and self.second is not None and not fixed:
             # (a retry read with the torso turned round: the first fit had the second start)
             rows = [i for i, m in enumerate(modes) if not m["partial"] and not items[i].get("turn_torso")]
         if rows:
@@ -1135,9 +1202,9 @@ class Fitter:
         t1 = time.perf_counter()
         dtype = self.body.v_template.dtype
         probs_fit = probs_ref  # the refinement's labels; what is reported stays the network's
-        if self.refine and self.hypotheses is not None and any(m["partial"] for m in modes):
+        if self.refine and not fixed and self.hypotheses is not None and any(m["partial"] for m in modes):
             probs_fit = self._pick_starts(ref_in, probs_ref, init, modes)
-        if self.refine:
+        if self.refine and not fixed:
             visible = None
             if any(m["partial"] for m in modes):  # model -> scan only where each partial scan's camera sees
                 from arteq.fit.partial import visibility_function
@@ -1184,7 +1251,7 @@ class Fitter:
             fit = {"local_rotmats": local, "betas": betas, "transl": transl, "vertices": verts,
                    "joints": joints, "global_rotmats": grot}  # fmt: skip
             conditions = [it.get("conditions") for it in items]
-            crossing, t_cross, checked = self._crossings(ref_in, probs_fit, modes, fit, conditions)
+            crossing, t_cross, checked = self._crossings(ref_in, probs_fit, modes, fit, conditions, fixed)
             local, betas, transl = fit["local_rotmats"], fit["betas"], fit["transl"]
             verts, joints, grot = fit["vertices"], fit["joints"], fit["global_rotmats"]
         import roma
@@ -1422,11 +1489,14 @@ class Fitter:
         modes: list[dict[str, Any]],
         fit: dict,
         conditions: list[dict | None] | None = None,
+        torso_only: bool = False,
     ) -> tuple[list[dict | None], list[float], list[dict | None]]:
         """Crossed limbs (:mod:`arteq.fit.crossing`) for the full scans of a refined batch: which pairs each
-        tries, the swaps' refinement, and ``fit``'s tensors replaced where a swap is kept. Returns per scan
-        the record for :attr:`FitResult.crossing` (None: nothing tried), its seconds, and the check's values
-        of the fit where it was not replaced (None elsewhere: checked again)."""
+        tries, the swaps' refinement, and ``fit``'s tensors replaced where a swap is kept; then the torso
+        step (:meth:`_turn_torso`; left for :meth:`_torso_once` where ``CrossingConfig.torso_once`` defers
+        it). ``torso_only``: the torso step alone (:meth:`_torso_once`'s pass). Returns per scan the record
+        for :attr:`FitResult.crossing` (None: nothing tried), its seconds, and the check's values of the fit
+        where it was not replaced (None elsewhere: checked again)."""
         t0 = time.perf_counter()
         n = len(ref_in)
         tries: list[list[str]] = [[] for _ in range(n)]
@@ -1446,13 +1516,18 @@ class Fitter:
             if verdict(q["flags"]) == "not_single_body":
                 continue
             doubtful[i] = describe_flags(q) if verdict(q["flags"]) == "uncertain" else ""
+            if torso_only:
+                continue
             tries[i] = pairs_to_try(joints[i], bool(doubtful[i]), self.crossing)
             if self.crossing.reach and doubtful[i] and "off_fit_limb" in q["flags"]:
                 extra[i] = self._reach(ref_in[i], fit, i)
-        if not any(tries) and not any(extra) and not (self.crossing.torso and any(doubtful)):
+        torso = self.crossing.torso and (torso_only or not self._torso_deferred)
+        if not any(tries) and not any(extra) and not (torso and any(doubtful)):
             return [None] * n, [0.0] * n, checked
-        picked = try_swaps(self.body, ref_in, fit, self.subset, tries, self.refine_config, self.crossing,
-                           extra=extra)  # fmt: skip
+        picked = [{"taken": ""} for _ in range(n)]
+        if any(tries) or any(extra):
+            picked = try_swaps(self.body, ref_in, fit, self.subset, tries, self.refine_config, self.crossing,
+                               extra=extra)  # fmt: skip
         for k in fit:
             fit[k] = fit[k].detach().clone()
         records: list[dict | None] = [None] * n
@@ -1485,7 +1560,7 @@ class Fitter:
                     rec["taken"] += "+" + p["taken"]
                     for k in fit:
                         fit[k][i] = p[k].to(fit[k].dtype)
-        turned = self._turn_torso(ref_in, fit, doubtful, records, checked)
+        turned = self._turn_torso(ref_in, fit, doubtful if torso else [""] * n, records, checked)
         went = [bool(t or e or u) for t, e, u in zip(tries, extra, turned)]
         seconds = (time.perf_counter() - t0) / max(1, sum(went))
         return records, [seconds if w else 0.0 for w in went], checked

@@ -86,6 +86,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="full scans: refit a doubtful fit with left / right limb pairs swapped, and with "
                     "a lost limb placed on the points off the fit; keep one that explains the scan better "
                     "(crossed arms; default: on)")  # fmt: skip
+    ap.add_argument("--crossing-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a setting of that step (arteq.fit.crossing.CrossingConfig), e.g. --crossing-set "
+                    "torso_once=true (the lost-torso step once per scan: about half the time on lost scans, "
+                    "less accurate); repeatable")  # fmt: skip
     ap.add_argument("--second-start", default=None, metavar="MODEL",
                     help="full scans: also refine from this model's pose and keep the fit that explains the "
                     "scan better (default: anny22 for a model on the all-ages body)")  # fmt: skip
@@ -145,6 +149,13 @@ def main(argv: list[str] | None = None) -> int:
         torch.set_num_threads(args.threads)
     try:
         cfg = RefineConfig.from_strings(args.refine_set)
+        crossing = args.crossing
+        if args.crossing_set:
+            if not crossing:
+                raise ValueError("--crossing-set sets the crossed-limb step: it cannot go with --no-crossing")
+            from arteq.fit.crossing import CrossingConfig
+
+            crossing = CrossingConfig.from_strings(args.crossing_set)
         if args.iters is not None:
             cfg.iters = args.iters
         clothing = None
@@ -157,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
         kwargs = dict(ckpt=args.ckpt, device=args.device, refine=args.refine, points=args.points,
                       refine_config=cfg, check=args.check, clean=args.clean, anny=args.anny,
                       strict=args.strict, partial=args.partial, view_dir=args.view_dir,
-                      crossing=args.crossing, second_start=args.second_start,
+                      crossing=crossing, second_start=args.second_start,
                       shape_betas=args.shape_betas, net_draws=args.net_draws, retries=args.retries,
                       retry_above_cm=args.retry_above, clothing=clothing, torso_retry=args.torso_retry,
                       clean_config=CleanConfig(objects=args.objects))  # fmt: skip

@@ -101,6 +101,10 @@ class CrossingConfig:
     torso: bool = True
     torso_iters: int = 60
     torso_rounds: int = 2
+    #: with the fitter's retries on (``Fitter(retries=...)``, ``torso_retry``): the torso step is left out of
+    #: the first fit and of every retry, and run once, on the fit the retries keep (where it is still doubted
+    #: and scores above ``reach_max_score_cm``); off, every one of those fits runs it
+    torso_once: bool = False
 
     @classmethod
     def from_strings(cls, items: list[str] | tuple[str, ...], **base) -> CrossingConfig:
