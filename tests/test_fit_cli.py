@@ -594,9 +594,9 @@ def test_crossing_settings_from_the_command_line(tiny_ckpt, body, tmp_path, monk
 
     monkeypatch.setattr(api, "Fitter", Recording)
     out = tmp_path / "fits"
-    opts = ["--crossing-set", "torso_once=true", "--crossing-set", "torso_iters=40"]
+    opts = ["--crossing-set", "torso_once=false", "--crossing-set", "torso_iters=40"]
     assert cli_main([*base, "--out", str(out), *opts]) == 0
-    assert made[0].torso_once is True and made[0].torso_iters == 40 and made[0].iters == 30, made
+    assert made[0].torso_once is False and made[0].torso_iters == 40 and made[0].iters == 30, made
     assert np.isfinite(np.load(out / "scan.npz")["vertices"]).all()
 
 

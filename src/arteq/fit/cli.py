@@ -88,8 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "(crossed arms; default: on)")  # fmt: skip
     ap.add_argument("--crossing-set", action="append", default=[], metavar="KEY=VALUE",
                     help="a setting of that step (arteq.fit.crossing.CrossingConfig), e.g. --crossing-set "
-                    "torso_once=true (the lost-torso step once per scan: about half the time on lost scans, "
-                    "less accurate); repeatable")  # fmt: skip
+                    "torso_once=false (the lost-torso step in every fit of a lost scan, not once on the fit "
+                    "its retries keep: slower); repeatable")  # fmt: skip
     ap.add_argument("--second-start", default=None, metavar="MODEL",
                     help="full scans: also refine from this model's pose and keep the fit that explains the "
                     "scan better (default: anny22 for a model on the all-ages body)")  # fmt: skip
