@@ -1127,7 +1127,9 @@ class Fitter:
 
     def _fit_batch(self, items: list[dict[str, Any]]) -> tuple[list[FitResult], list[tuple]]:
         """Fit a batch of :meth:`prepare` outputs without the Anny export; also returns each fit's
-        ``(betas, pose_aa, vertices in metres)`` for it."""
+        ``(betas, pose_aa, vertices in metres)`` for it. Items holding ``start_fit`` (all of the batch or
+        none; :meth:`_torso_once`) are read by the network as usual but keep that fit as it is: no second
+        start, no refinement, only the torso step of :meth:`_crossings`."""
         from scipy.spatial import cKDTree
 
         if not items:
