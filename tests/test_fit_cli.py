@@ -554,12 +554,18 @@ def test_shipped_model_end_to_end(body, tmp_path):
     assert v2v_cm < 4.0, v2v_cm
 
 
-def test_refinement_settings_from_the_command_line(tiny_ckpt, body, tmp_path, capsys):
-    """``--set KEY=VALUE`` reaches the refinement; a bad key or joint name: a clear error, no output."""
+def _quick_args(body, tiny_ckpt, tmp_path) -> list[str]:
+    """``arteq-fit``'s arguments for a small scan written to ``tmp_path``, fitted fast (no check, 3
+    iterations) by the tiny checkpoint; ``--out`` left to the caller."""
     s = synthetic_scan(body, "test_id", 1, 1000, offset=1.0)
     path = write_cloud(tmp_path / "scan.ply", s["points"])
-    base = [str(path), "--ckpt", str(tiny_ckpt), "--no-check", "--points", "800", "--iters", "3",
+    return [str(path), "--ckpt", str(tiny_ckpt), "--no-check", "--points", "800", "--iters", "3",
             "--device", "cpu", "--no-preview"]  # fmt: skip
+
+
+def test_refinement_settings_from_the_command_line(tiny_ckpt, body, tmp_path, capsys):
+    """``--set KEY=VALUE`` reaches the refinement; a bad key or joint name: a clear error, no output."""
+    base = _quick_args(body, tiny_ckpt, tmp_path)
     assert cli_main([*base, "--out", str(tmp_path / "bad"), "--set", "twist_at"]) == 2
     assert "expected KEY=VALUE" in capsys.readouterr().err
     assert cli_main([*base, "--out", str(tmp_path / "bad"), "--set", "twist_joints=left_hand"]) == 2
@@ -575,10 +581,7 @@ def test_crossing_settings_from_the_command_line(tiny_ckpt, body, tmp_path, monk
     ``--no-crossing``: a clear error, no output."""
     from arteq.fit import api
 
-    s = synthetic_scan(body, "test_id", 1, 1000, offset=1.0)
-    path = write_cloud(tmp_path / "scan.ply", s["points"])
-    base = [str(path), "--ckpt", str(tiny_ckpt), "--no-check", "--points", "800", "--iters", "3",
-            "--device", "cpu", "--no-preview"]  # fmt: skip
+    base = _quick_args(body, tiny_ckpt, tmp_path)
     assert cli_main([*base, "--out", str(tmp_path / "bad"), "--crossing-set", "torso_twice=true"]) == 2
     assert "torso_twice" in capsys.readouterr().err
     bad = [*base, "--out", str(tmp_path / "bad"), "--no-crossing", "--crossing-set", "torso_once=true"]

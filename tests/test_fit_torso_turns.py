@@ -71,11 +71,9 @@ def body(anny22):
     return anny22
 
 
-def test_the_fitter_turns_a_torso_read_upside_down_back_and_says_so(body, tmp_path, tiny_net):
-    """Through ``Fitter``: a "network" that reads the scan's pelvis and lower spine pitched by half a turn
-    (every other part's global rotation right) gives a fit lost as a whole; with the torso step the fit comes
-    back to the truth and its record names the start kept, without it stays lost."""
-    from arteq.fit.crossing import CrossingConfig
+def _upside_down(body, tmp_path, tiny_net):
+    """A scan (5000 points, 3 mm noise), its truth, a tiny checkpoint and a fitter class whose "network" reads
+    the scan's pelvis and lower spine pitched by half a turn, every other part's global rotation right."""
     from arteq.fit.demo import synthetic_scan
     from arteq.geometry.sampling import sample_surface
     from fit_helpers import reading_of, write_tiny_checkpoint
@@ -91,9 +89,17 @@ def test_the_fitter_turns_a_torso_read_upside_down_back_and_says_so(body, tmp_pa
     pts, _, _ = sample_surface(
         torch.as_tensor(truth["vertices"], dtype=torch.float32), body.faces, 5000, gen, noise_std=0.003
     )
-    pts = pts.double().numpy()
     ckpt = write_tiny_checkpoint(tmp_path / "tiny.ckpt", tiny_net)
-    Upside = reading_of(read["vertices"], pose, s["betas"], s["transl"])
+    return truth, pts.double().numpy(), ckpt, reading_of(read["vertices"], pose, s["betas"], s["transl"])
+
+
+def test_the_fitter_turns_a_torso_read_upside_down_back_and_says_so(body, tmp_path, tiny_net):
+    """Through ``Fitter``: a "network" that reads the scan's pelvis and lower spine pitched by half a turn
+    (every other part's global rotation right) gives a fit lost as a whole; with the torso step the fit comes
+    back to the truth and its record names the start kept, without it stays lost."""
+    from arteq.fit.crossing import CrossingConfig
+
+    truth, pts, ckpt, Upside = _upside_down(body, tmp_path, tiny_net)
     v2v, rec = {}, {}
     for on in (True, False):
         cfg = CrossingConfig(torso=on, torso_once=False)  # the step in the first fit (no retry needed)
@@ -112,27 +118,12 @@ def test_torso_once_turns_the_kept_fit_only(body, tmp_path, tiny_net):
     retries skip the torso step, the fit the retries keep takes it once (its own seconds), and the fit comes
     back as with the step in every fit."""
     from arteq.fit.crossing import CrossingConfig
-    from arteq.fit.demo import synthetic_scan
-    from arteq.geometry.sampling import sample_surface
-    from fit_helpers import reading_of, write_tiny_checkpoint
 
-    s = synthetic_scan(body, "test_id", 2, 5000, offset=0.0, rotate=True)
-    truth = _posed(body, s["pose"], s["betas"], s["transl"])
-    g = truth["global_rotmats"].copy()
-    low = list(CHAINS["to_spine2"])
-    g[low] = g[low] @ TURNS["pitch180"].T
-    pose = global_to_local(torch.as_tensor(g)).numpy()
-    read = _posed(body, pose, s["betas"], s["transl"])
-    gen = torch.Generator().manual_seed(5)
-    pts, _, _ = sample_surface(
-        torch.as_tensor(truth["vertices"], dtype=torch.float32), body.faces, 5000, gen, noise_std=0.003
-    )
-    ckpt = write_tiny_checkpoint(tmp_path / "tiny.ckpt", tiny_net)
-    Upside = reading_of(read["vertices"], pose, s["betas"], s["transl"])
+    truth, pts, ckpt, Upside = _upside_down(body, tmp_path, tiny_net)
     assert CrossingConfig().torso_once  # the default
     f = Upside(ckpt=ckpt, device="cpu", anny=False, retries=1)
     assert f._torso_deferred
-    r = f.fit_points(pts.double().numpy())
+    r = f.fit_points(pts)
     v2v = float(np.linalg.norm(r.vertices - truth["vertices"], axis=1).mean() * 100)
     assert r.retry is not None and "torso" in r.timings, (r.retry, r.timings)
     assert min(r.retry["scores_cm"]) > 3.0, r.retry  # no fit before the kept one was turned
