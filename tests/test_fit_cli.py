@@ -462,9 +462,9 @@ def test_api_and_command_agree(tiny_ckpt, body, tmp_path):
 
 
 def test_jobs_fit_the_same_as_one_process(tiny_ckpt, body, tmp_path):
-    """``jobs=2``: this process and a spawned worker fit alternate batches (one scan each here); every
-    output is the one process's, bit for bit (one torch thread each), and the summary keeps the inputs'
-    order. A bad input still gets its row; ``jobs`` without the Fitter's settings is an error."""
+    """``jobs=2``: this process and a spawned worker each take the next batch when free (one scan each
+    here); every output is the one process's, bit for bit (one torch thread each), and the summary keeps
+    the inputs' order. A bad input still gets its row; ``jobs`` without the Fitter's settings is an error."""
     clouds = [synthetic_scan(body, "test_id", i, 1200, offset=1.0)["points"] for i in range(3)]
     paths = [write_cloud(tmp_path / f"scan{i}.npy", c) for i, c in enumerate(clouds)]
     bad = tmp_path / "bad.npy"
@@ -496,15 +496,45 @@ def test_jobs_fit_the_same_as_one_process(tiny_ckpt, body, tmp_path):
     assert [r["name"] for r in summary["inputs"]] == ["scan0", "scan1", "scan2", "bad"]
     with pytest.raises(ValueError, match="fitter_kwargs"):
         fit_files(paths, tmp_path / "three", jobs=2)
-    # a worker that cannot start (its checkpoint is missing): this process's batches are fitted, the
-    # worker's inputs get an error row naming the failure, nothing half-written
+    # a worker that cannot start (its checkpoint is missing): the batch it took gets an error row naming
+    # the failure, nothing half-written; this process fits every other batch
     f = Fitter(**kw)
     bad_kw = {**kw, "ckpt": tmp_path / "missing.ckpt"}
     three = fit_files(paths, tmp_path / "four", fitter=f, preview=False, batch_size=1, log=lambda m: None,
                       jobs=2, threads=1, **bad_kw)  # fmt: skip
-    assert [r["status"] for r in three.rows] == ["ok", "error", "ok"]
-    assert "worker process failed" in three.rows[1]["message"]
-    assert not list((tmp_path / "four").glob("scan1.*"))
+    assert [r["name"] for r in three.rows] == ["scan0", "scan1", "scan2"]
+    status = [r["status"] for r in three.rows]
+    assert sorted(status) == ["error", "ok", "ok"]
+    lost = three.rows[status.index("error")]
+    assert "worker process failed" in lost["message"]
+    assert not list((tmp_path / "four").glob(f"{lost['name']}.*"))
+    for r in three.rows:
+        if r["status"] == "ok":
+            assert (tmp_path / "four" / f"{r['name']}.npz").exists()
+
+
+def test_auto_jobs_one_process_per_core_within_memory(monkeypatch):
+    """``arteq-fit``'s default ``--jobs``: one process per usable core (per ``threads`` cores when each gets
+    that many), capped by AUTO_JOBS_MAX and by the memory available; ``jobs=1`` when memory is short."""
+    import os
+
+    import arteq.fit.files as files
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(6)), raising=False)
+    monkeypatch.setattr(files, "_available_gb", lambda: 64.0)
+    assert files.auto_jobs("cpu") == 6
+    assert files.auto_jobs("cpu", threads=2) == 3
+    assert files.auto_jobs("cpu", threads=8) == 1
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)
+    assert files.auto_jobs("cpu") == files.AUTO_JOBS_MAX
+    monkeypatch.setattr(files, "_available_gb", lambda: 2.5 * files.AUTO_JOBS_GB)
+    assert files.auto_jobs("cpu") == 2
+    monkeypatch.setattr(files, "_available_gb", lambda: 0.5)
+    assert files.auto_jobs("cpu") == 1
+    monkeypatch.setattr(files, "_available_gb", lambda: None)  # no /proc/meminfo: the cores decide
+    assert files.auto_jobs("cpu") == files.AUTO_JOBS_MAX
+    with pytest.raises(ValueError, match="device"):
+        files.auto_jobs("tpu")
 
 
 def test_failed_write_leaves_nothing(tiny_ckpt, body, tmp_path, monkeypatch):

@@ -537,9 +537,10 @@ def goals_table(rows: list[dict]) -> str:
 
 def file_stem(name: str) -> str:
     """A short file name for an exported scan: ``child 6 y, stand`` -> ``child_6y_stand``; a clutter case
-    ``adult 22 y, stand: room: ...`` -> ``adult_22y_stand_room`` (``..._stray`` for stray points alone)."""
+    ``adult 22 y, stand: room: ...`` -> ``adult_22y_stand_room`` (``..._stray`` for stray points alone);
+    ``handstand (adult)`` -> ``handstand_adult``."""
     head, _, rest = name.partition(": ")
-    stem = head.replace(" y,", "y").replace(",", "").replace(" ", "_")
+    stem = head.replace(" y,", "y").replace(",", "").replace("(", "").replace(")", "").replace(" ", "_")
     if rest:
         stem += "_room" if rest.startswith("room") else "_stray"
     return stem
@@ -576,10 +577,11 @@ def run_people(a) -> None:
     if a.export:
         out = Path(a.export)
         out.mkdir(parents=True, exist_ok=True)
+        groups = {s.group for s in scans} if a.export_groups == "all" else set(a.export_groups.split(","))
         for s in scans:
-            if s.group in ("children", "clutter"):
+            if s.group in groups:
                 np.savez(out / f"{file_stem(s.name)}.npz", points=s.points.astype(np.float32))
-        print(f"wrote the children and clutter scans to {out}")
+        print(f"wrote the {', '.join(sorted(groups))} scans to {out}")
         if a.export_only:
             return
     from arteq.fit.crossing import CrossingConfig
@@ -725,7 +727,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0, help="people: seed of the scans")
     ap.add_argument("--out", default=None, help="people: write the Markdown tables here")
     ap.add_argument("--json", default=None, help="people: write every scan's record here")
-    ap.add_argument("--export", default=None, help="people: write the children and clutter scans here (.npz)")
+    ap.add_argument("--export", default=None, help="people: write the scans of --export-groups here (.npz)")
+    ap.add_argument("--export-groups", default="children,clutter",
+                    help="people: comma-separated groups --export writes, or all (default children,clutter)")
     ap.add_argument("--export-only", action="store_true", help="people: write them (--export) and stop")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="people: RefineConfig fields")

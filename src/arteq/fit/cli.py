@@ -119,9 +119,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--jobs",
         "-j",
         type=int,
-        default=1,
-        help="processes fitting batches side by side (default 1; on 2 cores, --jobs 2 fitted 56 scans in "
-        "52 s against 71 s in one process: each fit's steps are too small to share threads well)",
+        default=None,
+        help="processes fitting batches side by side (default: one per CPU core on the CPU, or per "
+        "--threads cores, at most 8 and one per 1.5 GB of free memory; one on a GPU). Each fit's steps are "
+        "too small to share threads well: on 2 cores two one-thread processes fit a folder faster than one "
+        "two-thread process",
     )
     return ap
 
@@ -131,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.points < 200:
         print(f"arteq-fit: --points must be >= 200, got {args.points}", file=sys.stderr)
         return 2
-    if args.jobs < 1:
+    if args.jobs is not None and args.jobs < 1:
         print(f"arteq-fit: --jobs must be >= 1, got {args.jobs}", file=sys.stderr)
         return 2
     if args.batch_size < 1:
@@ -142,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     from arteq.fit.api import Fitter
     from arteq.fit.clean import CleanConfig
     from arteq.fit.depth import DepthOptions
-    from arteq.fit.files import fit_files
+    from arteq.fit.files import auto_jobs, fit_files
     from arteq.fit.refine import RefineConfig
 
     if args.threads:
@@ -173,6 +175,7 @@ def main(argv: list[str] | None = None) -> int:
                       retry_above_cm=args.retry_above, clothing=clothing, torso_retry=args.torso_retry,
                       clean_config=CleanConfig(objects=args.objects))  # fmt: skip
         fitter = Fitter(**kwargs)
+        jobs = args.jobs or auto_jobs(args.device, args.threads)
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"arteq-fit: {exc}", file=sys.stderr)
         return 2
@@ -181,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
         overwrite=args.overwrite, batch_size=args.batch_size, progress=args.progress,
         depth=DepthOptions(intrinsics={k: getattr(args, k) for k in ("fx", "fy", "cx", "cy")},
                            depth_scale=args.depth_scale, depth_range_m=args.depth_range),
-        jobs=args.jobs, threads=args.threads, **(kwargs if args.jobs > 1 else {}),
+        jobs=jobs, threads=args.threads, **(kwargs if jobs > 1 else {}),
     )  # fmt: skip
     print(summary.line())
     return 1 if summary.failed else 0

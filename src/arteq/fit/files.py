@@ -218,6 +218,103 @@ def _worker_batch(args: tuple) -> tuple[list[dict[str, Any]], list[str]]:
     return _fit_batch(_WORKER_FITTER, *args)
 
 
+def _fit_side_by_side(
+    fitter: Fitter, args: list[tuple], batches: list[list], jobs: int, per: int,
+    fitter_kwargs: dict[str, Any], collect: Callable[[int, tuple], None],
+) -> None:  # fmt: skip
+    """Batches ``args`` fitted by this process and ``jobs - 1`` spawned workers, each taking the next batch
+    not yet taken when it is free (a scan that is refitted several times holds up only its own process);
+    ``collect(i, (rows, messages))`` receives batch ``i``'s results, in this process, one at a time."""
+    import multiprocessing
+    import threading
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    import torch
+
+    lock = threading.Lock()
+    order = iter(range(len(args)))
+    stop = threading.Event()  # this process failed: the feeders take nothing more
+
+    def take() -> int | None:
+        with lock:
+            return None if stop.is_set() else next(order, None)
+
+    def done(i: int, result: tuple) -> None:
+        with lock:
+            collect(i, result)
+
+    def failed(i: int, exc: BaseException) -> tuple:
+        why = f"a worker process failed ({type(exc).__name__}: {exc})"
+        rows = [{"input": str(f), "name": name, "status": "error", "message": f"{f}: {why}"}
+                for f, name in batches[i]]  # fmt: skip
+        return rows, [r["message"] for r in rows]
+
+    def feed(pool: ProcessPoolExecutor) -> None:  # one per worker: its next batch as soon as it is free
+        while (i := take()) is not None:
+            try:
+                result = pool.submit(_worker_batch, args[i]).result()
+            except BrokenProcessPool as exc:  # the workers died or never started: this process goes on alone
+                done(i, failed(i, exc))
+                return
+            except Exception as exc:  # noqa: BLE001 - an error the worker raised: its batch's inputs say so
+                result = failed(i, exc)
+            done(i, result)
+
+    ctx = multiprocessing.get_context("spawn")  # no forked torch thread pools
+    before = torch.get_num_threads()
+    torch.set_num_threads(per)  # this process's share too, for the run only
+    try:
+        with ProcessPoolExecutor(jobs - 1, mp_context=ctx, initializer=_init_worker,
+                                 initargs=(fitter_kwargs, per)) as pool:  # fmt: skip
+            feeders = [threading.Thread(target=feed, args=(pool,), daemon=True) for _ in range(jobs - 1)]
+            for t in feeders:
+                t.start()
+            try:
+                while (i := take()) is not None:  # this process's batches, taken the same way
+                    done(i, _fit_batch(fitter, *args[i]))
+            except BaseException:
+                stop.set()
+                raise
+            for t in feeders:
+                t.join()
+    finally:
+        torch.set_num_threads(before)
+
+
+#: at most this many processes by default (``auto_jobs``), and one per this much available memory (GB):
+#: a worker holds about 0.6 GB once its Fitter is built (the network, the bodies, anny for the export)
+AUTO_JOBS_MAX = 8
+AUTO_JOBS_GB = 1.5
+
+
+def _available_gb() -> float | None:
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) / 2**20
+    except OSError:
+        pass
+    return None
+
+
+def auto_jobs(device: str = "auto", threads: int | None = None) -> int:
+    """The processes ``arteq-fit`` fits with by default: on the CPU one per usable core (per ``threads``
+    cores when each process is given that many threads), at most :data:`AUTO_JOBS_MAX` and one per
+    :data:`AUTO_JOBS_GB` of available memory; one on a GPU."""
+    import os
+
+    from arteq.fit.api import resolve_device
+
+    if resolve_device(device).type != "cpu":
+        return 1
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    gb = _available_gb()
+    by_memory = int(gb // AUTO_JOBS_GB) if gb is not None else cores
+    return max(1, min(cores // max(1, threads or 1), AUTO_JOBS_MAX, by_memory))
+
+
 def fit_files(
     inputs: list[str | Path],
     out_dir: str | Path,
@@ -239,12 +336,13 @@ def fit_files(
     ``fitter``: a loaded :class:`Fitter` (else one is built from ``fitter_kwargs``: ``ckpt``, ``device``,
     ``refine``, ``points``, ``check``...). ``log`` receives one line per failed input (default: stderr).
     ``depth``: how depth images are read (:class:`arteq.fit.depth.DepthOptions`: intrinsics, depth range).
-    ``jobs`` > 1: this process and ``jobs - 1`` worker processes fit the batches side by side (every
-    ``jobs``-th batch each), the workers with a Fitter of their own built from ``fitter_kwargs`` (which
-    must then be given; this process uses ``fitter`` or builds one from them too), each process with
-    ``threads`` torch threads (default: the CPU count divided among them). The outputs are those of one
-    process; on two cores two one-thread processes fitted 28 scans in 38 s against 50 s for one two-thread
-    process (the fit's steps are too small to share threads well; experiments/fitting/speed.md).
+    ``jobs`` > 1: this process and ``jobs - 1`` worker processes fit the batches side by side (each
+    process takes the next batch when it is free; workers that die or cannot start leave the rest to this
+    process, their batch in hand reported as failed), the workers with a Fitter of their own built from
+    ``fitter_kwargs`` (which must then be given; this process uses ``fitter`` or builds one from them too),
+    each process with ``threads`` torch threads (default: the CPU count divided among them). The outputs are
+    those of one process; on two cores two one-thread processes fitted 28 scans in 38 s against 50 s for one
+    two-thread process (the fit's steps are too small to share threads well; experiments/fitting/speed.md).
     Returns a :class:`RunSummary`; ``summary.failed`` > 0 means some input failed.
     """
     import os
@@ -310,31 +408,7 @@ def fit_files(
         for i, a in enumerate(args):
             collect(i, _fit_batch(fitter, *a))
     else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        import torch
-
-        ctx = multiprocessing.get_context("spawn")  # no forked torch thread pools
-        before = torch.get_num_threads()
-        torch.set_num_threads(per)  # this process's share too, for the run only
-        try:
-            with ProcessPoolExecutor(jobs - 1, mp_context=ctx, initializer=_init_worker,
-                                     initargs=(fitter_kwargs, per)) as pool:  # fmt: skip
-                futures = {i: pool.submit(_worker_batch, a) for i, a in enumerate(args) if i % jobs}
-                for i, a in enumerate(args):  # this process's batches, then the workers' as they are ready
-                    if i not in futures:
-                        collect(i, _fit_batch(fitter, *a))
-                for i, fut in futures.items():
-                    try:
-                        collect(i, fut.result())
-                    except Exception as exc:  # noqa: BLE001 - a worker that died: its batch's inputs say so
-                        why = f"a worker process failed ({type(exc).__name__}: {exc})"
-                        rows = [{"input": str(f), "name": name, "status": "error", "message": f"{f}: {why}"}
-                                for f, name in batches[i]]  # fmt: skip
-                        collect(i, (rows, [r["message"] for r in rows]))
-        finally:
-            torch.set_num_threads(before)
+        _fit_side_by_side(fitter, args, batches, jobs, per, fitter_kwargs, collect)
     if bar is not None:
         bar.close()
     write_summary()
