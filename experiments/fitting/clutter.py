@@ -28,6 +28,8 @@ CASES = {
     "all: stray + floor + wall + box": ("id", ("stray", "floor", "wall", "box")),
     "acrobatic, all clutter": ("ood", ("stray", "floor", "wall", "box")),
     "lying on the floor + stray": ("lying", ("floor", "stray")),
+    "lying on the back on the floor + stray": ("supine", ("floor", "stray")),
+    "lying face down on the floor + stray": ("prone", ("floor", "stray")),
     "two people 0.9 m apart": ("two", ()),
 }
 
@@ -43,6 +45,8 @@ def scene(body, case: str, i: int):
         up = np.random.default_rng(100 + i).normal(size=3)
     if split == "lying":
         up = rot @ np.array([1.0, 0.0, 0.0])  # lying on its side
+    if split in ("supine", "prone"):  # on its back (the front up) or face down
+        up = rot @ np.array([0.0, 0.0, 1.0 if split == "supine" else -1.0])
     pts, lab = add_clutter(s["points"], s["vertices"], s["faces"], up, kinds, seed=i)
     if split == "two":
         t = synthetic_scan(body, "test_id", index=i + 50, seed=12, offset=0.0, rotate=False)
@@ -63,13 +67,14 @@ def main() -> None:
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=12)
+    ap.add_argument("--cases", default="", help="comma-separated substrings of the case names to run")
     a = ap.parse_args()
     body = load_body_model("anny22")
     print(f"{a.n} scans per case\n")
     print("| case | stray removed % | floor removed % | wall removed % | box removed % | body points lost % "
           "| body lost, > 2 cm from the floor % | flagged second_body | s per scan |")  # fmt: skip
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for case in CASES:
+    for case in [c for c in CASES if not a.cases or any(k in c for k in a.cases.split(","))]:
         rem = {k: [0, 0] for k in ("stray", "floor", "wall", "box")}
         lost, lost_free, flagged, secs = [], [], 0, []
         for i in range(a.n):

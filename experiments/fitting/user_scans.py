@@ -634,7 +634,11 @@ def rot_about(axis: str, deg: float) -> np.ndarray:
 CLUTTER = {
     "10% stray points": ("stray",),
     "room: floor, wall, box, 10% stray": ("stray", "floor", "wall", "box"),
+    "lying on the back on a floor, 10% stray": ("stray", "floor"),
+    "lying face down on a floor, 10% stray": ("stray", "floor"),
 }
+#: cases whose body lies on the floor: its front (+z) turned to the world's up (+y), or its back
+LYING = {"lying on the back on a floor, 10% stray": -90.0, "lying face down on a floor, 10% stray": 90.0}
 
 
 def scans(body, case: str, n: int) -> list[dict]:
@@ -659,6 +663,8 @@ def scans(body, case: str, n: int) -> list[dict]:
         r = {"z up": rot_about("x", 90), "upside down": rot_about("z", 180), "lying": rot_about("z", 90)}.get(
             case, np.eye(3)
         ) @ r
+        if case in LYING:  # laid down (front or back up), then any heading about the world's up
+            r = rot_about("y", rng.uniform(0, 360)) @ rot_about("x", LYING[case])
         off = rng.uniform(-2, 2, 3)
         if case == "millimetres, 300 m away":
             off = off + np.array([300.0, 0.0, -120.0])
@@ -668,7 +674,7 @@ def scans(body, case: str, n: int) -> list[dict]:
             from arteq.fit.demo import add_clutter
 
             item["clean_points"] = pts
-            up = r @ np.array([0.0, 1.0, 0.0])
+            up = np.array([0.0, 1.0, 0.0]) if case in LYING else r @ np.array([0.0, 1.0, 0.0])
             item["points"], _ = add_clutter(pts, verts, body.faces.numpy(), up, CLUTTER[case], seed=i)
         out.append(item)
     return out
