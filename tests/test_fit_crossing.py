@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -201,6 +203,23 @@ def test_a_crossing_is_found_and_a_good_fit_left_alone(body, scene):
     assert out[1]["taken"] in ("", "none") and out[1]["tried"]["forearms"] > out[1]["tried"]["none"], out[1]
     assert out[1]["stopped"] == {"forearms": CrossingConfig().stop_at}
     assert surface_score(clouds[1], fit["vertices"], subset) == pytest.approx(out[1]["score"])
+    # polished (CrossingConfig.polish_iters): the swap taken is refined on from where it ended (here cut
+    # short at 6 iterations, not converged) and kept where it scores lower; a fit whose swap lost is not
+    cfg = CrossingConfig(iters=6, stop_at=-1, polish_iters=0)
+    short = try_swaps(body, clouds, fit_t, subset, [["forearms"], ["forearms"]], ref, cfg)
+    pol = try_swaps(body, clouds, fit_t, subset, [["forearms"], ["forearms"]], ref,
+                    dataclasses.replace(cfg, polish_iters=30))  # fmt: skip
+    assert short[0]["taken"] == pol[0]["taken"] == "forearms"
+    assert pol[0]["tried"] == pytest.approx(short[0]["tried"]) and "polish_cm" not in short[0]
+    assert pol[0]["polish_cm"] < pol[0]["tried"]["forearms"]
+    score = surface_score(clouds[0], pol[0]["vertices"].double().numpy(), subset)
+    assert score == pytest.approx(pol[0]["polish_cm"])
+
+    def v2v(o):
+        return np.linalg.norm(o["vertices"].double().numpy() - crossed["vertices"], axis=1).mean() * 100
+
+    assert v2v(pol[0]) < v2v(short[0]) - 0.2, (v2v(short[0]), v2v(pol[0]))
+    assert pol[1]["taken"] in ("", "none") and "polish_cm" not in pol[1]
 
 
 def test_a_refit_after_a_doubt_stays_uncertain():

@@ -1539,6 +1539,8 @@ class Fitter:
             records[i] = {"score_cm": round(p["score"], 4), "tried_cm": {k: round(v, 4) for k, v in
                           p["tried"].items()}, "stopped": p.get("stopped", {}), "taken": p["taken"],
                           "first_doubt": doubtful[i]}  # fmt: skip
+            if "polish_cm" in p:  # the swap taken, refined on (CrossingConfig.polish_iters)
+                records[i]["polish_cm"] = round(p["polish_cm"], 4)
             if p["taken"]:
                 checked[i] = None
                 for k in fit:
