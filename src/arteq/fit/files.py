@@ -299,17 +299,22 @@ def _available_gb() -> float | None:
     return None
 
 
+def _usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity, e.g. a container's share; else the CPU count)."""
+    import os
+
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def auto_jobs(device: str = "auto", threads: int | None = None) -> int:
     """The processes ``arteq-fit`` fits with by default: on the CPU one per usable core (per ``threads``
     cores when each process is given that many threads), at most :data:`AUTO_JOBS_MAX` and one per
     :data:`AUTO_JOBS_GB` of available memory; one on a GPU."""
-    import os
-
     from arteq.fit.api import resolve_device
 
     if resolve_device(device).type != "cpu":
         return 1
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    cores = _usable_cores()
     gb = _available_gb()
     by_memory = int(gb // AUTO_JOBS_GB) if gb is not None else cores
     return max(1, min(cores // max(1, threads or 1), AUTO_JOBS_MAX, by_memory))
@@ -340,13 +345,12 @@ def fit_files(
     process takes the next batch when it is free; workers that die or cannot start leave the rest to this
     process, their batch in hand reported as failed), the workers with a Fitter of their own built from
     ``fitter_kwargs`` (which must then be given; this process uses ``fitter`` or builds one from them too),
-    each process with ``threads`` torch threads (default: the CPU count divided among them). The outputs are
-    those of one process; on two cores two one-thread processes fitted 28 scans in 38 s against 50 s for one
-    two-thread process (the fit's steps are too small to share threads well; experiments/fitting/speed.md).
+    each process with ``threads`` torch threads (default: the usable cores divided among them). The outputs
+    are those of one process; on two cores two one-thread processes fitted 28 scans in 38 s against 50 s for
+    one two-thread process (the fit's steps are too small to share threads well;
+    experiments/fitting/speed.md).
     Returns a :class:`RunSummary`; ``summary.failed`` > 0 means some input failed.
     """
-    import os
-
     if jobs < 1:
         raise ValueError(f"jobs must be >= 1, got {jobs}")
     if jobs > 1 and not fitter_kwargs:
@@ -373,7 +377,7 @@ def fit_files(
     size = max(1, batch_size)
     batches = [todo[s : s + size] for s in range(0, len(todo), size)]
     jobs = max(1, min(jobs, len(batches)))
-    per = threads or max(1, (os.cpu_count() or jobs) // jobs)
+    per = threads or max(1, _usable_cores() // jobs)
     if batches and fitter is None:
         fitter = Fitter(**fitter_kwargs)
     bar = None
