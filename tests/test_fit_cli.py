@@ -454,8 +454,11 @@ def test_api_and_command_agree(tiny_ckpt, body, tmp_path):
     np.testing.assert_array_equal(res.point_labels, z["point_labels"])
     # every stage of the fit is timed, and the total (the summary's seconds) is their sum
     t = res.timings
-    stages = ("clean", "network", "scan_mode", "refine", "check", "crossing")
+    stages = ("clean", "network", "scan_mode", "refine", "check", "crossing", "hands")
     assert all(t[k] >= 0 for k in stages) and t["network"] > 0 and t["refine"] > 0
+    # the hands' last pass ran (an Anny body): its curls in [0, 1] in the npz as in the result
+    assert res.hand_curl.shape == (2,) and np.all((res.hand_curl >= 0) & (res.hand_curl <= 1))
+    np.testing.assert_allclose(res.hand_curl, z["hand_curl"], atol=1e-6)
     assert t["total"] == pytest.approx(sum(t[k] for k in stages))
     rows = json.loads((out / "summary.json").read_text())["inputs"]
     assert rows[0]["seconds"] > 0

@@ -268,6 +268,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--json", default=None)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--dump", default=None, help="write each fit's and truth's vertices here (.npz)")
+    ap.add_argument("--no-hands", action="store_true", help="Fitter(hands=False): the hands left flat")
     ap.add_argument("--export", default=None, help="write the scans here (.npz, points only) and stop")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
@@ -283,7 +284,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     from arteq.fit import Fitter
 
-    fitter = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=True)
+    fitter = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=True, hands=not a.no_hands)
     hands = np.isin(fitter.body.lbs_weights.argmax(1).numpy(), [JOINT_NAMES.index(n) for n in HANDS])
     records = []
     for s in scans:

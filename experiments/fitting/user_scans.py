@@ -598,6 +598,7 @@ def run_people(a) -> None:
         net_draws=a.net_draws, retries=a.retries, retry_above_cm=a.retry_above,
         **({"torso_retry": False} if a.no_torso_retry else {}),
         **({"second_start": False} if a.no_second_start else {}),
+        **({"hands": False} if a.no_hands else {}),
     )
     fitter = Fitter(anny=True, **kw)
     other = Fitter(anny=False, seed=1, **kw)
@@ -749,6 +750,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--curved", action="store_true",
                     help="people: scan the smooth surface through each mesh's vertices, not its flat faces")
     ap.add_argument("--no-second-start", action="store_true", help="people: Fitter(second_start=False)")
+    ap.add_argument("--no-hands", action="store_true", help="people: Fitter(hands=False)")
     ap.add_argument(
         "--truth-betas",
         type=int,

@@ -182,9 +182,41 @@ class AnnyExport:
 
     # ------------------------------------------------------------------ one fit
     @torch.no_grad()
-    def export(self, betas: np.ndarray, pose_rotmats: np.ndarray, vertices_m: np.ndarray) -> dict[str, Any]:
-        """Everything for one fit: ``betas [nb]``, local ``pose_rotmats [22, 3, 3]`` and the fitted mesh
-        ``vertices_m [V, 3]`` in metres in the scan's frame. Returns arrays and values for the npz / json."""
+    def _finger_turns(self, rest: torch.Tensor, hand_curl: np.ndarray | None):
+        """For a curl ``[2]`` (None or zero: nothing): Anny's 30 finger bone indices, their rest-frame
+        transforms ``[30, 4, 4]`` in the body's T-pose (:meth:`arteq.body.hands.HandCurl.transforms`) and
+        each bone's own turn ``[30, 3, 3]`` in Anny's rest axes (the bake undone)."""
+        if hand_curl is None or not np.any(np.asarray(hand_curl) > 0):
+            return None
+        from arteq.body.hands import FINGER_BONES, SIDES, hands_for, rodrigues
+
+        if not hasattr(self, "_hands"):
+            self._hands = hands_for(self.body)
+        if self._hands is None:
+            return None
+        hc = self._hands.double().cpu()
+        c = torch.as_tensor(np.asarray(hand_curl), dtype=torch.float64)[None]
+        rot, trans = hc.transforms(hc.heads(rest[None].double()), c)
+        T = torch.eye(4, dtype=torch.float64).repeat(30, 1, 1)
+        T[:, :3, :3], T[:, :3, 3] = rot[0], trans[0]
+        idx = {b: i for i, b in enumerate(self.bone_labels)}
+        bones = [idx[f"{name}.{side}"] for side in SIDES for name in FINGER_BONES]
+        glob = anny_rig.baked_globals(self.model, self.bake)[bones]  # [30, 3, 3]
+        axes = hc.axes.repeat_interleave(3, dim=0)  # [30, 3] body rest axes
+        axes_anny = (glob.transpose(-1, -2) @ self.C.T @ axes[..., None])[..., 0]
+        own = rodrigues(axes_anny, c.repeat_interleave(15, dim=1)[0] * hc.max_rad)
+        return bones, T, own
+
+    def export(
+        self,
+        betas: np.ndarray,
+        pose_rotmats: np.ndarray,
+        vertices_m: np.ndarray,
+        hand_curl: np.ndarray | None = None,
+    ) -> dict[str, Any]:
+        """Everything for one fit: ``betas [nb]``, local ``pose_rotmats [22, 3, 3]``, the fitted mesh
+        ``vertices_m [V, 3]`` in metres in the scan's frame and its fingers' curl ``hand_curl [2]``
+        (:mod:`arteq.body.hands`; None: flat). Returns arrays and values for the npz / json."""
         t0 = time.perf_counter()
         body = self.body
         dev = body.v_template.device
@@ -213,7 +245,12 @@ class AnnyExport:
             fit.joints[0].detach().cpu().double() - (G @ fit.rest_joints[0].cpu().double()[..., None])[..., 0]
         )
         parts = anny_rig.fold_table(self.model.bone_labels, self.model.bone_parents)
-        world = A[parts] @ F @ tpose["bone_poses"][0]
+        curl = self._finger_turns(rest, hand_curl)  # (bone indices, rest-frame transforms [30, 4, 4], ...)
+        world = A[parts]
+        if curl is not None:  # the finger bones curled in the body's rest frame, then moved with their part
+            world = world.clone()
+            world[curl[0]] = world[curl[0]] @ curl[1]
+        world = world @ F @ tpose["bone_poses"][0]
         rebuilt = self.stock(
             pose_parameters=world[None], phenotype_kwargs=kwargs, pose_parameterization="world"
         )
@@ -223,8 +260,10 @@ class AnnyExport:
 
         # The kinematic pose on Anny's rig: rotations only (every bone takes its part's world rotation),
         # Anny's own joint centres; in the stock model's local-ref parameters.
-        out = self.model(pose_parameters=anny_rig.anny_deltas_from_pose(self.model, self.bake, pose),
-                         phenotype_kwargs=kwargs)  # fmt: skip
+        deltas = anny_rig.anny_deltas_from_pose(self.model, self.bake, pose)
+        if curl is not None:  # each finger bone's own turn, in Anny's rest axes (its local-ref delta)
+            deltas[0, curl[0], :3, :3] = deltas[0, curl[0], :3, :3] @ curl[2]
+        out = self.model(pose_parameters=deltas, phenotype_kwargs=kwargs)
         kin = out["vertices"][0] @ self.C.T
         kshift = (target - kin).mean(0)
         kerr = (kin + kshift - target).norm(dim=-1) * 1000.0

@@ -99,6 +99,9 @@ class FitResult:
     the covered parts, the iterations and how far the vertices moved from the clothed fit (``moved_cm``,
     mean); None otherwise. Vertices, joints, pose, shape, point distances and the Anny export are then the
     skin's; ``quality`` is the clothed fit's.
+    ``hand_curl [2]``: the fingers' curl of the left and right hand (0 Anny's flat hand .. 1 closed;
+    :mod:`arteq.fit.hands`, the last pass before the Anny export; vertices, wrists' pose and point distances
+    are then the curled hands'; ``quality`` is the check's, before it); None where the pass did not run.
     """
 
     name: str
@@ -141,6 +144,7 @@ class FitResult:
     crossing: dict | None = None  # full scans: swapped limb pairs tried (fit.crossing.try_swaps)
     retry: dict | None = None  # full scans fitted again (Fitter's retries): every fit's score, the one kept
     clothing: dict | None = None  # the skin under the clothes (Fitter's clothing): thickness, parts, moved
+    hand_curl: np.ndarray | None = None  # [2] the fitted fingers' curl, left and right hand (Fitter's hands)
 
     def seen_names(self, seen: bool = True) -> list[str]:
         """Names of the parts seen (or, ``seen=False``, not seen) in the scan."""
@@ -203,6 +207,8 @@ class FitResult:
             "crossing_taken": np.str_((self.crossing or {}).get("taken", "")),
             # cm of cloth the body was fitted under (Fitter's clothing; 0: the scanned surface itself)
             "clothing_cm": np.float64((self.clothing or {}).get("thickness_cm", 0.0)),
+            # the fingers' curl, left and right hand, 0 flat .. 1 closed (Fitter's hands; NaN: not fitted)
+            "hand_curl": np.asarray(self.hand_curl if self.hand_curl is not None else np.full(2, np.nan)),
             **clutter,
             **npz_arrays(self.anny),
             **{k: np.asarray(v, dtype=np.float64) for k, v in q.items()},
@@ -237,6 +243,7 @@ class FitResult:
             "crossing": self.crossing,
             "retry": self.retry,
             "clothing": self.clothing,
+            "hand_curl": None if self.hand_curl is None else [round(float(x), 3) for x in self.hand_curl],
             "anny": json_section(self.anny, self.anny_note),
             "seconds": {k: round(v, 3) for k, v in self.timings.items()},
         }
@@ -541,6 +548,10 @@ class Fitter:
             (:meth:`_retry`; ``None``: :data:`RETRIES`, :data:`RETRY_ABOVE_CM`).
         torso_retry: those retries include one from the network's reading with the torso turned round
             (``None``: :data:`TORSO_RETRY`; networks that do not split sides in the torso's frame never).
+        hands: the hands' last pass on every written full scan's fit (:func:`arteq.fit.hands.fit_hands`:
+            each hand's finger curl and wrist fitted to the points it explains; bodies built from Anny
+            only): ``True`` (default) or a :class:`arteq.fit.hands.HandsConfig`; ``False`` leaves the hands
+            flat as the refinement fits them (experiments/fitting/native_anny/README.md).
     """
 
     def __init__(
@@ -569,6 +580,7 @@ class Fitter:
         retry_above_cm: float | None = None,
         clothing: Any = None,
         torso_retry: bool | None = None,
+        hands: Any = True,
     ) -> None:
         from arteq.pretrained import resolve_checkpoint
         from arteq.runtime import tune_cpu_allocator
@@ -633,6 +645,18 @@ class Fitter:
         if clothing is not None and not refine:
             raise ValueError("clothing is a last refinement: it needs refine=True (drop --no-refine)")
         self.clothing = clothing
+        self.hand_curl, self.hands_config, self.hands_note = None, None, "off (hands=False)"
+        if hands is not False and refine:
+            from arteq.body.hands import hands_for
+            from arteq.fit.hands import HandsConfig
+
+            try:
+                self.hand_curl = hands_for(self.body)
+                no_bones = f"off: {self.body.name} has no finger bones"
+                self.hands_note = "" if self.hand_curl is not None else no_bones
+            except RuntimeError as exc:  # not cached and no anny to build it: the hands stay flat
+                self.hands_note = f"off: {exc}"
+            self.hands_config = hands if isinstance(hands, HandsConfig) else HandsConfig()
         self.denoise_above_mm = denoise_above_mm
         self.faces = self.body.faces.cpu().numpy()
         self.vertex_parts = self.body.part_labels.cpu().numpy()
@@ -831,12 +855,14 @@ class Fitter:
             self._retry(items, results, exports)
         if self.clothing is not None:  # refine is on (checked when built)
             self._under_clothes(items, results, exports)
+        if self.hand_curl is not None:
+            self._hands(items, results, exports)
         for r, (betas, pose_aa, verts_m) in zip(results, exports, strict=True):
             r.anny_note = self.anny_note
             if self.anny_export is not None and r.written:
                 rot = roma.rotvec_to_rotmat(torch.as_tensor(pose_aa, dtype=torch.float64)).numpy()
                 try:
-                    r.anny = self.anny_export.export(betas, rot, verts_m)
+                    r.anny = self.anny_export.export(betas, rot, verts_m, hand_curl=r.hand_curl)
                     r.timings["anny"] = r.anny["seconds"]
                 except Exception as exc:  # noqa: BLE001 - the fit stands without its Anny export
                     r.anny_note = f"failed: {type(exc).__name__}: {exc}"
@@ -909,6 +935,50 @@ class Fitter:
             r.timings["clothing"] = seconds
             r.timings["total"] += seconds
             exports[i] = (out.betas[j].double().cpu().numpy(), pose_aa[j], verts[j] + c)
+
+    def _hands(self, items: list[dict[str, Any]], results: list[FitResult], exports: list[tuple]) -> None:
+        """The hands' last pass (:func:`arteq.fit.hands.fit_hands`) on every written full scan's fit:
+        ``results`` and ``exports`` updated in place, the curls in :attr:`FitResult.hand_curl`."""
+        import roma
+        from scipy.spatial import cKDTree
+
+        from arteq.fit.hands import fit_hands
+
+        rows = [i for i, r in enumerate(results)
+                if r.written and r.vertices is not None and r.scan_mode == "full"]  # fmt: skip
+        if not rows:
+            return
+        t0 = time.perf_counter()
+        dtype = self.body.v_template.dtype
+        pts, rot, betas, transl = [], [], [], []
+        for i in rows:
+            r, c, s = results[i], items[i]["center"], results[i].scale_to_m
+            pts.append(r.scan_points.astype(np.float64) * s - c)
+            rot.append(roma.rotvec_to_rotmat(torch.as_tensor(r.pose_aa, dtype=torch.float64)))
+            betas.append(torch.as_tensor(r.betas, dtype=torch.float64))
+            transl.append(torch.as_tensor(r.transl_m - c, dtype=torch.float64))
+        init = {k: torch.stack(v).to(dtype=dtype, device=self.device)
+                for k, v in (("local_rotmats", rot), ("betas", betas), ("transl", transl))}  # fmt: skip
+        out = fit_hands(self.body, self.hand_curl, pts, init, self.hands_config)
+        seconds = (time.perf_counter() - t0) / len(rows)
+        pose_aa = roma.rotmat_to_rotvec(out["local_rotmats"].double()).cpu().numpy()
+        verts = out["vertices"].double().cpu().numpy()
+        for j, i in enumerate(rows):
+            r, it = results[i], items[i]
+            c, s = it["center"], r.scale_to_m
+            r.hand_curl = out["curl"][j].double().cpu().numpy()
+            r.timings["hands"] = seconds
+            r.timings["total"] += seconds
+            if not out["kept"][j].any():
+                continue
+            r.vertices = ((verts[j] + c) / s).astype(np.float32)
+            r.pose_aa = pose_aa[j].astype(np.float32)
+            r.global_rotmats = out["global_rotmats"][j].double().cpu().numpy().astype(np.float32)
+            finite = it.get("finite", it["keep"])
+            d, vi = cKDTree(verts[j]).query(it.get("finite_centred", it["centred"]))
+            r.point_fit_labels[finite] = self.vertex_parts[vi]
+            r.point_distance[finite] = d / s
+            exports[i] = (exports[i][0], pose_aa[j], verts[j] + c)
 
     def _objects(self, items: list[dict[str, Any]], results: list[FitResult], exports: list[tuple]) -> None:
         """Fit again, without them, the full scans whose fit the check doubts or refuses (but not two bodies

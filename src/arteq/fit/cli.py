@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--clothing-parts", default=None, metavar="JOINTS",
                     help="the parts the clothes cover, joint names comma-separated (default: trunk, upper "
                     "arms, thighs and shins: arteq.fit.clothing.COVERED)")  # fmt: skip
+    ap.add_argument("--hands", action=argparse.BooleanOptionalAction, default=True,
+                    help="fit each hand's finger curl and wrist last (bodies built from Anny; default: on); "
+                    "--no-hands leaves the hands flat")  # fmt: skip
     ap.add_argument("--preview", action=argparse.BooleanOptionalAction, default=True, help="write <name>.png")
     ap.add_argument("--overwrite", action="store_true", help="replace existing outputs (else skip them)")
     ap.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
@@ -173,6 +176,7 @@ def main(argv: list[str] | None = None) -> int:
                       crossing=crossing, second_start=args.second_start,
                       shape_betas=args.shape_betas, net_draws=args.net_draws, retries=args.retries,
                       retry_above_cm=args.retry_above, clothing=clothing, torso_retry=args.torso_retry,
+                      hands=args.hands,
                       clean_config=CleanConfig(objects=args.objects))  # fmt: skip
         fitter = Fitter(**kwargs)
         jobs = args.jobs or auto_jobs(args.device, args.threads)
