@@ -105,6 +105,17 @@ def test_the_fingers_curl_towards_the_palm(body, hands):
             for c in (0.6, -0.6)
         }
         assert dist[0.6] < 0.6 * flat and dist[0.6] < dist[-0.6] - 0.02, (hand, flat, dist)
+    # one curl per finger ([B, 10]), all five of a hand alike, is the hand's curl ([B, 2])
+    per_hand = hands(rest, torch.tensor([[0.7, 0.2]], dtype=rest.dtype))
+    per_finger = hands(rest, torch.tensor([[0.7] * 5 + [0.2] * 5], dtype=rest.dtype))
+    assert torch.allclose(per_hand, per_finger, atol=1e-12)
+    only_index = hands(rest, torch.tensor([[0, 0.7, 0, 0, 0] + [0] * 5], dtype=rest.dtype))
+    moved = (only_index - rest)[0].norm(dim=1) > 1e-9
+    assert moved.any() and moved.sum() < 0.3 * len(hands.moved)  # one finger of one hand
+    with pytest.raises(ValueError, match="curl must be"):
+        hands(rest, torch.zeros(1, 3, dtype=rest.dtype))
+    with pytest.raises(ValueError, match="a body of 13718 vertices"):
+        hands(rest[:, :100], torch.zeros(1, 2, dtype=rest.dtype))
 
 
 def test_the_hands_pass_finds_a_curl_and_leaves_a_flat_hand_flat(body, hands):

@@ -84,7 +84,8 @@ class HandCurl(torch.nn.Module):
         """Each finger bone's rest-frame transform for ``curl [B, 2]``: rotations ``[B, 30, 3, 3]`` and
         translations ``[B, 30, 3]`` (``x -> R x + t``), from the bones' rest ``heads [B, 30, 3]``."""
         b, dtype = heads.shape[0], heads.dtype
-        per_bone = curl.to(dtype).repeat_interleave(15, dim=1)  # [B, 30]
+        # [B, 2]: one curl per hand; [B, 10]: one per finger (hand * 5 + finger)
+        per_bone = curl.to(dtype).repeat_interleave(15 if curl.shape[1] == 2 else 3, dim=1)  # [B, 30]
         angle = per_bone * self.max_rad.to(dtype)
         axes = self.axes.to(dtype).repeat_interleave(3, dim=0)  # [30, 3]
         local = rodrigues(axes, angle)  # [B, 30, 3, 3]
@@ -102,13 +103,15 @@ class HandCurl(torch.nn.Module):
         return torch.stack(rots, 2).reshape(b, 30, 3, 3), torch.stack(trans, 2).reshape(b, 30, 3)
 
     def forward(self, rest: torch.Tensor, curl: torch.Tensor | None) -> torch.Tensor:
-        """``rest [B, V, 3]`` with the fingers curled by ``curl [B, 2]`` (left, right hand; None: as is)."""
+        """``rest [B, V, 3]`` with the fingers curled by ``curl [B, 2]`` (left, right hand), or ``[B, 10]``
+        (each finger: hand * 5 + finger, thumb first); None: as is."""
         if curl is None:
             return rest
         if rest.shape[1] != self.num_vertices:
             raise ValueError(f"HandCurl: a body of {self.num_vertices} vertices, got {rest.shape[1]}")
-        if curl.shape != (rest.shape[0], 2):
-            raise ValueError(f"HandCurl: curl must be [{rest.shape[0]}, 2], got {tuple(curl.shape)}")
+        if curl.shape not in ((rest.shape[0], 2), (rest.shape[0], 10)):
+            raise ValueError(f"HandCurl: curl must be [{rest.shape[0]}, 2] or [{rest.shape[0]}, 10], got "
+                             f"{tuple(curl.shape)}")  # fmt: skip
         return self.deform(rest, self.heads(rest), curl, self.vert)
 
     def deform(

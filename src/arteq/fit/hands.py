@@ -43,6 +43,7 @@ class HandsConfig:
     m2s_stride: int = 3  # every this many of a hand's vertices in the hand -> scan term
     min_points: int = 15
     w_wrist: float = 0.1  # prior on the wrist's turn (per rad^2)
+    per_finger: bool = False  # one curl per finger (curl [B, 10]) instead of one per hand
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -117,7 +118,8 @@ def fit_hands(
         near.append(row)
     active = torch.tensor([[p is not None for p in row] for row in near], device=device)  # [B, 2]
 
-    curl = torch.zeros(b, 2, dtype=dtype, device=device, requires_grad=True)
+    per = 5 if cfg.per_finger else 1
+    curl = torch.zeros(b, 2 * per, dtype=dtype, device=device, requires_grad=True)
     dw = torch.zeros(b, 2, 3, dtype=dtype, device=device, requires_grad=True)
     opt = torch.optim.Adam([{"params": [curl], "lr": cfg.lr_curl}, {"params": [dw], "lr": cfg.lr_wrist}])
     wrists = list(HAND_JOINTS)
@@ -137,7 +139,7 @@ def fit_hands(
         """The hands' vertices ``[B, Vl + Vr, 3]`` with curls ``c`` and wrist turns ``d``."""
         rot = rot0.clone()
         rot[:, wrists] = rot0[:, wrists] @ roma.rotvec_to_rotmat(d * active[..., None])
-        curled = sub.deform(rest_h, heads, c.clamp(0.0, 1.0) * active)
+        curled = sub.deform(rest_h, heads, c.clamp(0.0, 1.0) * active.repeat_interleave(per, dim=1))
         return skin(curled, rest_joints, rot, weights, PARENTS, None, transl)[0]
 
     def objective(verts: torch.Tensor) -> torch.Tensor:
@@ -174,7 +176,7 @@ def fit_hands(
     with torch.no_grad():
         end = objective(posed(curl, dw))
         kept = active & (end < start)
-        c = curl.detach().clamp(0.0, 1.0) * kept
+        c = curl.detach().clamp(0.0, 1.0) * kept.repeat_interleave(per, dim=1)
         d = dw.detach() * kept[..., None]
         active_keep = kept
         rot = rot0.clone()
