@@ -13,7 +13,8 @@
    times) to ``--out``.
 
 The all-ages body and the fixed sets are read from ``$ARTEQ_CACHE_DIR`` (carry a prebuilt cache: the GPU
-machine has no ``anny``). Validation runs at each epoch end on the cached validation set; test sets are
+machine has no ``anny``; with ``data.hand_curl=P``, curled hands in a share of the training clouds, carry
+``body_models/anny_allages_hands.npz`` in it too: docs/data.md). Validation runs at each epoch end on the cached validation set; test sets are
 left to a CPU run of ``python -m arteq.eval`` on the returned checkpoint. ``--device cpu`` checks the
 whole script here (tiny ``--budget``); experiments/scan_model/README.md, gpu7, has the calls.
 """

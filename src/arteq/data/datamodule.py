@@ -278,6 +278,9 @@ class BodyScanDataModule(L.LightningDataModule):
             (:data:`arteq.results.VIEW_SPLITS`, named so or by view: ``front`` = ``test_view_front``).
         holes: holes in the full-surface training clouds (:class:`arteq.data.holes.HoleConfig` fields;
             ``prob``: share of those clouds with holes); the fixed sets have none.
+        hand_curl: share of the training clouds whose hands are curled (each hand's curl uniform in [0, 1],
+            Anny's finger bones: :mod:`arteq.body.hands`; bodies built from Anny); the fixed sets' hands are
+            flat.
     """
 
     def __init__(
@@ -314,6 +317,7 @@ class BodyScanDataModule(L.LightningDataModule):
         single_view: Mapping[str, Any] | None = None,
         view_splits: list[str] | tuple[str, ...] | None = None,
         holes: Mapping[str, Any] | None = None,
+        hand_curl: float = 0.0,
     ) -> None:
         super().__init__()
         if source not in ("synthetic", "amass"):
@@ -344,6 +348,9 @@ class BodyScanDataModule(L.LightningDataModule):
         self.view_splits = tuple(v for v in VIEW_SPLITS if v in named)
         self.single_view = SingleViewConfig.from_mapping(to_plain(single_view))
         self.holes = HoleConfig.from_mapping(to_plain(holes))
+        if not 0.0 <= float(hand_curl) <= 1.0:
+            raise ValueError(f"data.hand_curl is a probability in [0, 1], got {hand_curl}")
+        self.hand_curl = float(hand_curl)
         if not 0.0 <= float(wide_poses) <= 1.0:
             raise ValueError(f"data.wide_poses is a probability in [0, 1], got {wide_poses}")
         self.wide_poses = float(wide_poses)
@@ -475,13 +482,24 @@ class BodyScanDataModule(L.LightningDataModule):
                 view=split[len("test_view_") :], **self.sampling,
             )  # fmt: skip
         holes = self.holes if split == "train" else None  # the fixed sets stay complete surfaces
+        curl = (
+            {"hand_curl": self.hand_curl} if split == "train" and self.hand_curl > 0 else {}
+        )  # flat there too
         if split == "train" and self.single_view.prob > 0:
             return SingleViewDataset(
                 src, self.body, split, int(size), seed=self.seed, augment=augment, config=self.single_view,
-                view="any", holes=holes, **self.sampling,
+                view="any", holes=holes, **curl, **self.sampling,
             )  # fmt: skip
         return BodyScanDataset(
-            src, self.body, split, int(size), seed=self.seed, augment=augment, holes=holes, **self.sampling
+            src,
+            self.body,
+            split,
+            int(size),
+            seed=self.seed,
+            augment=augment,
+            holes=holes,
+            **curl,
+            **self.sampling,
         )
 
     # ------------------------------------------------------------------ fixed sets

@@ -25,6 +25,8 @@ import roma
 import torch
 from torch.utils.data import Dataset, Sampler
 
+from arteq.body.lbs import skin
+from arteq.body.skeleton import PARENTS
 from arteq.data.holes import OVERSAMPLE, HoleConfig, carve_holes
 from arteq.data.poses import PoseSource
 from arteq.data.shapes import SHAPE_META_KEYS, no_shape_meta
@@ -94,6 +96,7 @@ class BodyScanDataset(Dataset):
         beta_scale: float = 1.0,
         shapes: object | None = None,
         holes: HoleConfig | None = None,
+        hand_curl: float = 0.0,
     ) -> None:
         if augment not in AUGMENTS:
             raise ValueError(f"augment must be one of {AUGMENTS}, got {augment!r}")
@@ -109,6 +112,20 @@ class BodyScanDataset(Dataset):
         self.beta_scale = beta_scale
         self.shapes = shapes
         self.holes = holes if holes is not None and holes.prob > 0 else None
+        if not 0.0 <= float(hand_curl) <= 1.0:
+            raise ValueError(f"hand_curl is a probability in [0, 1], got {hand_curl}")
+        #: share of samples whose hands are curled (each hand uniform in [0, 1]; :mod:`arteq.body.hands`)
+        self.hand_curl = float(hand_curl)
+        self._hands = None
+        if self.hand_curl > 0:
+            from arteq.body.hands import hands_for
+
+            self._hands = hands_for(body)
+            if self._hands is None:
+                raise ValueError(
+                    "hand_curl needs a body built from Anny (its finger bones); "
+                    f"{getattr(body, 'name', 'body')!r} has none"
+                )
 
     def __len__(self) -> int:
         return self.size
@@ -171,10 +188,20 @@ class BodyScanDataset(Dataset):
         scan_transl = torch.zeros(3, dtype=torch.float64) if scan_transl is None else scan_transl.double()
 
         dtype = self.body.lbs_weights.dtype
-        out = self.body(
-            betas=betas[None].to(dtype), pose=rot[None].to(dtype), transl=scan_transl[None].to(dtype)
-        )
-        verts, grot, pelvis = out.vertices[0], out.global_rotmats[0], out.joints[0, 0]
+        curl = self._curl(key)
+        if curl is None:
+            out = self.body(
+                betas=betas[None].to(dtype), pose=rot[None].to(dtype), transl=scan_transl[None].to(dtype)
+            )
+            verts, grot, pelvis = out.vertices[0], out.global_rotmats[0], out.joints[0, 0]
+        else:  # the same body with its fingers curled before the skinning (the pose and shape as drawn)
+            rest, rest_joints = self.body.shape(betas[None].to(dtype))
+            hands = self._hands(rest, curl.to(dtype))
+            weights, transl = self.body.lbs_weights, scan_transl[None].to(dtype)
+            verts, joints, grots = skin(
+                hands, rest_joints, rot[None].to(dtype), weights, PARENTS, None, transl
+            )
+            verts, grot, pelvis = verts[0], grots[0], joints[0, 0]
         points, labels = self._surface_points(verts, self.body.faces, grot, pelvis, key)
         center = points.mean(0)
         sample = {
@@ -189,6 +216,14 @@ class BodyScanDataset(Dataset):
         if meta is not None:
             sample.update({k: meta[k] for k in META_KEYS})
         return sample
+
+    def _curl(self, key: tuple) -> torch.Tensor | None:
+        """``[1, 2]`` the sample's hands' curl (:attr:`hand_curl` of the samples, its own random stream), or
+        None for flat hands."""
+        if self.hand_curl <= 0:
+            return None
+        u = torch.rand(3, generator=seeded_generator(*key, "hands"), dtype=torch.float64)
+        return u[None, 1:] if u[0] < self.hand_curl else None
 
     def _surface_points(
         self, verts: torch.Tensor, faces: torch.Tensor, grot: torch.Tensor, pelvis: torch.Tensor, key: tuple
