@@ -228,6 +228,7 @@ def run(
     model: str | None, usable_cm: float, seed: int = 0, crossing: bool = True, gain: float | None = None,
     refine_set: tuple[str, ...] = (), net_draws: int | None = None, retries: int | None = None,
     retry_above_cm: float | None = None, crossing_set: tuple[str, ...] = (), torso_retry: bool | None = None,
+    hands: bool = True,
 ) -> list[dict]:  # fmt: skip
     from arteq.fit.api import Fitter
     from arteq.fit.crossing import CrossingConfig
@@ -240,7 +241,7 @@ def run(
     cfg = RefineConfig.from_strings(refine_set)
     fitter = Fitter(ckpt=model, device="cpu", anny=False, crossing=crossing, refine_config=cfg,
                     net_draws=net_draws, retries=retries, retry_above_cm=retry_above_cm,
-                    torso_retry=torso_retry)  # fmt: skip
+                    torso_retry=torso_retry, hands=hands)  # fmt: skip
     records = []
     for it in labelled_set(seed):
         t = time.perf_counter()
@@ -311,13 +312,14 @@ def main() -> None:
     ap.add_argument("--retries", type=int, default=None, help="Fitter(retries=...) (default: the Fitter's)")
     ap.add_argument("--retry-above", type=float, default=None, help="Fitter(retry_above_cm=...)")
     ap.add_argument("--no-torso-retry", action="store_true", help="Fitter(torso_retry=False)")
+    ap.add_argument("--no-hands", action="store_true", help="Fitter(hands=False)")
     a = ap.parse_args()
     torch.set_num_threads(1)
     t0 = time.perf_counter()
     records, ckpt = run(a.model, a.usable_cm, a.seed, crossing=not a.no_crossing, gain=a.crossing_gain,
                         refine_set=tuple(a.set), net_draws=a.net_draws, retries=a.retries,
                         retry_above_cm=a.retry_above, crossing_set=tuple(a.crossing),
-                        torso_retry=False if a.no_torso_retry else None)  # fmt: skip
+                        torso_retry=False if a.no_torso_retry else None, hands=not a.no_hands)  # fmt: skip
     print(f"\ncheckpoint {ckpt}; {len(records)} scans in {time.perf_counter() - t0:.0f} s\n")
     print(table(records))
     if a.out:
