@@ -459,6 +459,23 @@ def test_api_and_command_agree(tiny_ckpt, body, tmp_path):
     # the hands' last pass ran (an Anny body): its curls in [0, 1] in the npz as in the result
     assert res.hand_curl.shape == (2,) and np.all((res.hand_curl >= 0) & (res.hand_curl <= 1))
     np.testing.assert_allclose(res.hand_curl, z["hand_curl"], atol=1e-6)
+    assert f.hands_note == "" and f.hand_curl is not None
+    for kw, note in (({"hands": False}, "off (hands=False)"), ({"refine": False}, "off (no refinement)")):
+        g = Fitter(ckpt=tiny_ckpt, device="cpu", points=800, check=False, anny=False, **kw)
+        assert g.hand_curl is None and g.hands_note == note
+    assert np.isnan(
+        Fitter(
+            ckpt=tiny_ckpt,
+            device="cpu",
+            points=800,
+            check=False,
+            anny=False,
+            hands=False,
+            refine_config=RefineConfig(iters=4),
+        )
+        .fit_points(s["points"])
+        .arrays()["hand_curl"]
+    ).all()
     assert t["total"] == pytest.approx(sum(t[k] for k in stages))
     rows = json.loads((out / "summary.json").read_text())["inputs"]
     assert rows[0]["seconds"] > 0

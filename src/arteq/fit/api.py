@@ -645,7 +645,8 @@ class Fitter:
         if clothing is not None and not refine:
             raise ValueError("clothing is a last refinement: it needs refine=True (drop --no-refine)")
         self.clothing = clothing
-        self.hand_curl, self.hands_config, self.hands_note = None, None, "off (hands=False)"
+        off = "off (hands=False)" if hands is False else "off (no refinement)"
+        self.hand_curl, self.hands_config, self.hands_note = None, None, off
         if hands is not False and refine:
             from arteq.body.hands import hands_for
             from arteq.fit.hands import HandsConfig
