@@ -39,6 +39,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import roma
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -63,12 +64,9 @@ HANDS = ("left_wrist", "right_wrist")
 
 
 def _rot(axis: np.ndarray, deg: float) -> torch.Tensor:
-    """Rotation ``[3, 3]`` (float64) by ``deg`` about ``axis`` (Rodrigues)."""
+    """Rotation ``[3, 3]`` (float64) by ``deg`` about ``axis``."""
     a = torch.as_tensor(axis, dtype=torch.float64)
-    a = a / a.norm()
-    k = torch.tensor([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]], dtype=torch.float64)
-    t = np.deg2rad(deg)
-    return torch.eye(3, dtype=torch.float64) + np.sin(t) * k + (1 - np.cos(t)) * (k @ k)
+    return roma.rotvec_to_rotmat(a / a.norm() * np.deg2rad(deg))
 
 
 class NativeAnny:

@@ -27,6 +27,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import roma
 import torch
 
 #: curl 1 turns each finger joint this far (degrees; index .. little finger); the thumb's half of it
@@ -39,19 +40,6 @@ SIDES = ("L", "R")  # the body's left hand (+x), then its right
 REGRESSOR_SAMPLES, HELD_OUT = 96, 32
 CANDIDATES = 40  # nearest rest vertices of each head the regressor may use
 FORMAT = 1
-
-
-def rodrigues(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
-    """Rotations ``[..., 3, 3]`` by ``angle [...]`` (radians) about unit ``axis [3]`` (or ``[..., 3]``)."""
-    a = axis.expand(*angle.shape, 3)
-    zero = torch.zeros_like(angle)
-    k = torch.stack(
-        [zero, -a[..., 2], a[..., 1], a[..., 2], zero, -a[..., 0], -a[..., 1], a[..., 0], zero], -1
-    )
-    k = k.reshape(*angle.shape, 3, 3)
-    s, c = torch.sin(angle)[..., None, None], torch.cos(angle)[..., None, None]
-    eye = torch.eye(3, dtype=angle.dtype, device=angle.device)
-    return eye + s * k + (1 - c) * (k @ k)
 
 
 class HandCurl(torch.nn.Module):
@@ -88,7 +76,7 @@ class HandCurl(torch.nn.Module):
         per_bone = curl.to(dtype).repeat_interleave(15 if curl.shape[1] == 2 else 3, dim=1)  # [B, 30]
         angle = per_bone * self.max_rad.to(dtype)
         axes = self.axes.to(dtype).repeat_interleave(3, dim=0)  # [30, 3]
-        local = rodrigues(axes, angle)  # [B, 30, 3, 3]
+        local = roma.rotvec_to_rotmat(axes * angle[..., None])  # [B, 30, 3, 3]
         local = local.reshape(b, 10, 3, 3, 3)  # [B, chain (hand * 5 + finger), joint, 3, 3]
         h = heads.reshape(b, 10, 3, 3)
         g = torch.eye(3, dtype=dtype, device=heads.device).expand(b, 10, 3, 3)
@@ -115,15 +103,19 @@ class HandCurl(torch.nn.Module):
         return self.deform(rest, self.heads(rest), curl, self.vert)
 
     def deform(
-        self, x: torch.Tensor, heads: torch.Tensor, curl: torch.Tensor, rows: torch.Tensor
-    ) -> torch.Tensor:
-        """Rest vertices ``x [B, R, 3]`` curled: ``rows [M]`` the row of ``x`` of each weight's vertex
-        (:attr:`vert` when ``x`` is the whole rest mesh); ``heads``: :meth:`heads` of the whole rest mesh."""
+        self, x: torch.Tensor, heads: torch.Tensor, curl: torch.Tensor, rows: torch.Tensor,
+        entries: torch.Tensor | None = None,
+    ) -> torch.Tensor:  # fmt: skip
+        """Rest vertices ``x [B, R, 3]`` curled; ``heads``: :meth:`heads` of the whole rest mesh. ``rows``:
+        the row of ``x`` of each finger weight's vertex (:attr:`vert` when ``x`` is the whole rest mesh),
+        or, with ``entries [M]`` (bool, which of the weights ``x`` holds), of those weights' vertices."""
         rot, trans = self.transforms(heads, curl)
+        bone, weight = self.bone, self.weight
+        if entries is not None:
+            bone, weight = bone[entries], weight[entries]
         xv = x[:, rows]  # [B, M, 3]
-        moved = (rot[:, self.bone] @ xv[..., None])[..., 0] + trans[:, self.bone]
-        shift = (moved - xv) * self.weight.to(x.dtype)[None, :, None]
-        return x.index_add(1, rows, shift)
+        moved = (rot[:, bone] @ xv[..., None])[..., 0] + trans[:, bone]
+        return x.index_add(1, rows, (moved - xv) * weight.to(x.dtype)[None, :, None])
 
 
 # ----------------------------------------------------------------------------------------- building

@@ -188,7 +188,9 @@ class AnnyExport:
         each bone's own turn ``[30, 3, 3]`` in Anny's rest axes (the bake undone)."""
         if hand_curl is None or not np.any(np.asarray(hand_curl) > 0):
             return None
-        from arteq.body.hands import FINGER_BONES, SIDES, hands_for, rodrigues
+        import roma
+
+        from arteq.body.hands import FINGER_BONES, SIDES, hands_for
 
         if not hasattr(self, "_hands"):
             self._hands = hands_for(self.body)
@@ -204,7 +206,7 @@ class AnnyExport:
         glob = anny_rig.baked_globals(self.model, self.bake)[bones]  # [30, 3, 3]
         axes = hc.axes.repeat_interleave(3, dim=0)  # [30, 3] body rest axes
         axes_anny = (glob.transpose(-1, -2) @ self.C.T @ axes[..., None])[..., 0]
-        own = rodrigues(axes_anny, c.repeat_interleave(15, dim=1)[0] * hc.max_rad)
+        own = roma.rotvec_to_rotmat(axes_anny * (c.repeat_interleave(15, dim=1)[0] * hc.max_rad)[:, None])
         return bones, T, own
 
     def export(

@@ -49,21 +49,6 @@ class HandsConfig:
         return asdict(self)
 
 
-class _HandRows:
-    """A :class:`arteq.body.hands.HandCurl`'s weights restricted to some vertices (``on [M]`` of its
-    entries), as rows ``rows`` of a subset of the rest mesh."""
-
-    def __init__(self, hands, on: torch.Tensor, rows: torch.Tensor) -> None:
-        self.hands, self.on, self.rows = hands, on, rows
-
-    def deform(self, x: torch.Tensor, heads: torch.Tensor, curl: torch.Tensor) -> torch.Tensor:
-        rot, trans = self.hands.transforms(heads, curl)
-        bone, weight = self.hands.bone[self.on], self.hands.weight[self.on].to(x.dtype)
-        xv = x[:, self.rows]
-        moved = (rot[:, bone] @ xv[..., None])[..., 0] + trans[:, bone]
-        return x.index_add(1, self.rows, (moved - xv) * weight[None, :, None])
-
-
 def _gm(r2: torch.Tensor, sigma: float) -> torch.Tensor:
     s2 = sigma * sigma
     return r2 / (r2 + s2)
@@ -100,6 +85,7 @@ def fit_hands(
         rest, rest_joints = body.shape(betas)
         verts0 = skin(rest, rest_joints, rot0, body.lbs_weights, PARENTS, None, transl)[0]
     part = body.part_labels
+    part_np = part.cpu().numpy()
     hand_v = [torch.nonzero(part == j)[:, 0] for j in HAND_JOINTS]
     # the points each hand explains, per fit and hand (device tensors; None: too few)
     near: list[list[torch.Tensor | None]] = []
@@ -110,7 +96,7 @@ def fit_hands(
         d, vi = cKDTree(v).query(pts)
         row = []
         for h, j in enumerate(HAND_JOINTS):
-            sel = (part.cpu().numpy()[vi] == j) & (d < cfg.radius_m)
+            sel = (part_np[vi] == j) & (d < cfg.radius_m)
             counts[i, h] = int(sel.sum())
             row.append(
                 torch.as_tensor(pts[sel], dtype=dtype, device=device) if sel.sum() >= cfg.min_points else None
@@ -130,8 +116,8 @@ def fit_hands(
     # the finger weights on those vertices, as rows of ``rest[:, both]``; the heads of the (fixed) rest mesh
     row_of = torch.full((rest.shape[1],), -1, dtype=torch.long, device=device)
     row_of[both] = torch.arange(len(both), device=device)
-    on = row_of[hands.vert] >= 0
-    sub = _HandRows(hands, on, row_of[hands.vert][on])
+    on = row_of[hands.vert] >= 0  # (every finger weight lies on a hand: all of them, in practice)
+    rows = row_of[hands.vert][on]
     heads = hands.heads(rest)
     rest_h = rest[:, both]
 
@@ -139,7 +125,9 @@ def fit_hands(
         """The hands' vertices ``[B, Vl + Vr, 3]`` with curls ``c`` and wrist turns ``d``."""
         rot = rot0.clone()
         rot[:, wrists] = rot0[:, wrists] @ roma.rotvec_to_rotmat(d * active[..., None])
-        curled = sub.deform(rest_h, heads, c.clamp(0.0, 1.0) * active.repeat_interleave(per, dim=1))
+        curled = hands.deform(
+            rest_h, heads, c.clamp(0.0, 1.0) * active.repeat_interleave(per, dim=1), rows, on
+        )
         return skin(curled, rest_joints, rot, weights, PARENTS, None, transl)[0]
 
     def objective(verts: torch.Tensor) -> torch.Tensor:
@@ -177,10 +165,8 @@ def fit_hands(
         end = objective(posed(curl, dw))
         kept = active & (end < start)
         c = curl.detach().clamp(0.0, 1.0) * kept.repeat_interleave(per, dim=1)
-        d = dw.detach() * kept[..., None]
-        active_keep = kept
         rot = rot0.clone()
-        rot[:, wrists] = rot0[:, wrists] @ roma.rotvec_to_rotmat(d * active_keep[..., None])
+        rot[:, wrists] = rot0[:, wrists] @ roma.rotvec_to_rotmat(dw.detach() * kept[..., None])
         verts, joints, glob = skin(
             hands.deform(rest, heads, c, hands.vert),
             rest_joints,
