@@ -1,7 +1,8 @@
 """Scans of bodies posed on Anny's own rig (104 bones, Anny's own skinning), fitted through the public API.
 
     OMP_NUM_THREADS=1 .venv/bin/python experiments/fitting/native_anny.py [--ckpt anny_scan] [--seed 0] \
-        [--bodies 12] [--out experiments/fitting/native_anny/native_seed0.md] [--json ...]
+        [--bodies 12] [--out experiments/fitting/native_anny/native_seed0.md] [--json ...] [--no-hands] \
+        [--no-lost-hand] [--versions rig22,native,hands,spread]
 
 Why: every other labelled scan of the project is drawn from the fitted body itself (``anny_allages``: Anny's
 mesh, its rig folded to 22 parts, linear blend skinning on the baked T-pose). A user who has ``anny`` poses
@@ -191,10 +192,24 @@ def fit_native(fitter, scan: Scan, hands: np.ndarray, dump: str | None = None) -
     r = fitter.fit_points(scan.points, name=scan.name)
     rec = {"group": scan.group, "name": scan.name, "status": r.status,
            "reason": r.uncertain_reason or r.message, "fit_s": r.timings.get("total")}  # fmt: skip
+    q = r.quality or {}
+    rec["check"] = {k: q[k] for k in ("inlier_frac", "coverage", "off_group_frac", "off_group_cm", "flags")
+                    if k in q}  # fmt: skip
+    if r.crossing:
+        c = r.crossing
+        rec["crossing"] = {"taken": c.get("taken", ""), "tried": sorted(c.get("tried_cm", {})),
+                           "lost_hand": c.get("lost_hand")}  # fmt: skip
     if r.vertices is None:
         return rec
     v = r.vertices.astype(np.float64)
     e = np.linalg.norm(v - scan.vertices, axis=1) * 100
+    parts = fitter.vertex_parts
+    per_part = np.bincount(parts, weights=e, minlength=len(JOINT_NAMES)) / np.maximum(
+        np.bincount(parts, minlength=len(JOINT_NAMES)), 1
+    )
+    worst = int(per_part.argmax())
+    seen = int(r.part_points[worst]) if r.part_points is not None else -1  # the network's points of it
+    rec["worst_part"] = {"name": JOINT_NAMES[worst], "cm": float(per_part[worst]), "net_points": seen}
     rec.update(v2v_cm=float(e.mean()), v2v_body_cm=float(e[~hands].mean()),
                v2v_hands_cm=float(e[hands].mean()),
                chamfer_cm=surface_distance_cm(v, scan.vertices),
@@ -219,14 +234,15 @@ def table(records: list[dict]) -> str:
     def f(x, signed=False):
         return "-" if x is None else (f"{x:+.2f}" if signed else f"{x:.2f}")
 
+    versions = [v for v in VERSIONS if any(r["group"] == v for r in records)]
     by = {}
     for r in records:
         by.setdefault(r["name"].split(" [")[0], {})[r["group"]] = r
-    head = "| body, pose | " + " | ".join(f"{v}: V2V (no hands) / J15 / stature" for v in VERSIONS) + " |"
-    lines = [head, "|---|" + "---|" * len(VERSIONS)]
+    head = "| body, pose | " + " | ".join(f"{v}: V2V (no hands) / J15 / stature" for v in versions) + " |"
+    lines = [head, "|---|" + "---|" * len(versions)]
     for name, row in by.items():
         cells = []
-        for v in VERSIONS:
+        for v in versions:
             r = row.get(v, {})
             st = "" if r.get("status") == "ok" else f" ({r.get('status')})"
             v2v = f"{f(r.get('v2v_cm'))} ({f(r.get('v2v_body_cm'))})"
@@ -236,7 +252,7 @@ def table(records: list[dict]) -> str:
                "| hands' V2V mean | Chamfer mean cm | 15-joint mean cm | "
                "|stature err| mean / worst cm | ok / uncertain / refused |",
                "|---|---|---|---|---|---|---|---|"]  # fmt: skip
-    for v in VERSIONS:
+    for v in versions:
         rs = [r for r in records if r["group"] == v]
         e = np.array([r["v2v_cm"] for r in rs if r.get("v2v_cm") is not None])
         eb = np.array([r["v2v_body_cm"] for r in rs if r.get("v2v_body_cm") is not None])
@@ -267,6 +283,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--dump", default=None, help="write each fit's and truth's vertices here (.npz)")
     ap.add_argument("--no-hands", action="store_true", help="Fitter(hands=False): the hands left flat")
+    ap.add_argument("--no-lost-hand", action="store_true", help="CrossingConfig(lost_hand=False)")
     ap.add_argument("--export", default=None, help="write the scans here (.npz, points only) and stop")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
@@ -281,8 +298,11 @@ def main(argv: list[str] | None = None) -> None:
         print(f"wrote {len(scans)} scans to {out}")
         return
     from arteq.fit import Fitter
+    from arteq.fit.crossing import CrossingConfig
 
-    fitter = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=True, hands=not a.no_hands)
+    crossing = CrossingConfig(lost_hand=not a.no_lost_hand)
+    fitter = Fitter(ckpt=a.ckpt, device="cpu", points=5000, anny=True, hands=not a.no_hands,
+                    crossing=crossing)  # fmt: skip
     hands = np.isin(fitter.body.lbs_weights.argmax(1).numpy(), [JOINT_NAMES.index(n) for n in HANDS])
     records = []
     for s in scans:

@@ -402,6 +402,7 @@ def fit_scan(fitter, scan: Scan, other=None) -> dict:
            "anny_s": r.timings.get("anny"), "wall_s": wall, "body": scan.vertices is not None}  # fmt: skip
     rec.update({k: (r.quality or {}).get(k) for k in ("inlier_frac", "coverage", "surface_ratio", "off_group_frac",
                                                       "off_group_cm")})
+    rec["crossing"] = (r.crossing or {}).get("taken", "")
     if scan.vertices is not None and r.vertices is not None:
         v = r.vertices.astype(np.float64)
         rec["v2v_cm"] = float(np.linalg.norm(v - scan.vertices, axis=1).mean() * 100)

@@ -92,9 +92,11 @@ class FitResult:
     (the worse one stopped there; the refinement's count: both ran to the end).
     ``crossing``: for a full scan that tried swapped limb pairs (:mod:`arteq.fit.crossing`), the fit's
     score, each pair's score (cm; where it stopped for those in ``stopped``) and the pair taken (``""``:
-    none); None when none was tried. ``retry``: for a doubtful full scan fitted again (``Fitter(retries=K)``),
-    every fit's surface score (cm; the first fit's first), which reading each fit started from (``reads``:
-    ``first``, ``retry K``, ``torso turned``) and the index of the one kept; None otherwise.
+    none); ``lost_hand``: the lost-hand step's record where it ran (:func:`arteq.fit.lost_hand.fit_lost_hand`;
+    an arm it put back is also in ``taken``, ``hand_<arm>``); None when nothing was tried. ``retry``: for a
+    doubtful full scan fitted again (``Fitter(retries=K)``), every fit's surface score (cm; the first
+    fit's first), which reading each fit started from (``reads``: ``first``, ``retry K``, ``torso
+    turned``) and the index of the one kept; None otherwise.
     ``clothing``: for a fit refined as the skin under clothes (``Fitter(clothing=...)``), the thickness (cm),
     the covered parts, the iterations and how far the vertices moved from the clothed fit (``moved_cm``,
     mean); None otherwise. Vertices, joints, pose, shape, point distances and the Anny export are then the
@@ -1325,6 +1327,8 @@ class Fitter:
                    "joints": joints, "global_rotmats": grot}  # fmt: skip
             conditions = [it.get("conditions") for it in items]
             crossing, t_cross, checked = self._crossings(ref_in, probs_fit, modes, fit, conditions, fixed)
+            if self.crossing.lost_hand and not fixed:
+                self._lost_hands(ref_in, modes, fit, crossing, t_cross, checked)
             local, betas, transl = fit["local_rotmats"], fit["betas"], fit["transl"]
             verts, joints, grot = fit["vertices"], fit["joints"], fit["global_rotmats"]
         import roma
@@ -1693,6 +1697,46 @@ class Fitter:
                     for k in fit:
                         fit[k][i] = p[k].to(fit[k].dtype)
         return tried
+
+    def _lost_hands(
+        self, ref_in: list[np.ndarray], modes: list[dict[str, Any]], fit: dict, records: list[dict | None],
+        seconds: list[float], checked: list[dict | None],
+    ) -> None:  # fmt: skip
+        """:func:`arteq.fit.lost_hand.fit_lost_hand` on each full scan of ``fit`` (the crossed-limb step's
+        tensors, updated in place where an arm is kept); its record under ``"lost_hand"`` of the scan's
+        crossing record (``records``, created where there was none; ``"hand_<arm>"`` added to its
+        ``taken``), its seconds added to ``seconds``, ``checked`` cleared where the fit changed."""
+        from arteq.fit.crossing import surface_score
+        from arteq.fit.lost_hand import fit_lost_hand
+
+        for i in range(len(ref_in)):
+            q = checked[i]
+            if modes[i]["partial"] or (q is not None and verdict(q["flags"]) == "not_single_body"):
+                continue
+            t0 = time.perf_counter()
+            row = {k: fit[k][i].detach().double().cpu().numpy() for k in fit}
+            rec = fit_lost_hand(self.body, ref_in[i], row, self.vertex_parts)
+            if rec is None:
+                continue
+            if records[i] is None:
+                doubt = describe_flags(q) if q is not None and verdict(q["flags"]) == "uncertain" else ""
+                records[i] = {"score_cm": round(surface_score(ref_in[i], row["vertices"], self.subset), 4),
+                              "tried_cm": {}, "stopped": {}, "taken": "", "first_doubt": doubt}  # fmt: skip
+            records[i]["lost_hand"] = {k: v for k, v in rec.items() if k != "local_rotmats"}
+            if rec["arm"]:
+                taken = records[i]["taken"]
+                records[i]["taken"] = (taken + "+" if taken else "") + "hand_" + rec["arm"]
+                local = fit["local_rotmats"]
+                local[i] = torch.as_tensor(rec["local_rotmats"], dtype=local.dtype, device=local.device)
+                with torch.no_grad():
+                    o = self.body(betas=fit["betas"][i : i + 1], pose=local[i : i + 1],
+                                  transl=fit["transl"][i : i + 1])  # fmt: skip
+                fit["vertices"][i], fit["joints"][i], fit["global_rotmats"][i] = (
+                    o.vertices[0].to(fit["vertices"].dtype), o.joints[0].to(fit["joints"].dtype),
+                    o.global_rotmats[0].to(fit["global_rotmats"].dtype),
+                )  # fmt: skip
+                checked[i] = None
+            seconds[i] += time.perf_counter() - t0
 
     def _reach(self, points: np.ndarray, fit: dict, i: int) -> dict[str, np.ndarray]:
         """:func:`arteq.fit.reach.reach_starts` of row ``i`` of ``fit`` (the check's off-fit distances); none

@@ -111,6 +111,11 @@ class CrossingConfig:
     #: 28-38 % less time on lost scans, the same accuracy within the fitter seeds' spread
     #: (experiments/scan_model/spine/torso/kept/)
     torso_once: bool = True
+    #: after the steps above, a fit with a group of scan points off it (``LostHandConfig.min_points`` or more)
+    #: tries each arm that reaches the group with its hand put there, the arm alone fitted on a local
+    #: objective (:mod:`arteq.fit.lost_hand`): a fist near the knees that the network gave none of the
+    #: hand's points. On since 2026-12-07 (experiments/fitting/lost_hand/README.md)
+    lost_hand: bool = True
 
     @classmethod
     def from_strings(cls, items: list[str] | tuple[str, ...], **base) -> CrossingConfig:
