@@ -95,12 +95,19 @@ def test_the_lost_hand_is_put_back_and_nothing_else_moves(body, scene):
 
 
 def test_a_fit_that_explains_its_scan_is_left_alone(body, scene):
-    """The truth as the fit: no group of points off it, nothing tried; a group out of both arms' reach (a
-    patch 2 m away) is tried by neither arm."""
+    """The truth as the fit: no group of points off it, nothing tried; a hand the network gave 1 % of the
+    points or more is not tried (it was seen: the group is something else); a group out of both arms' reach
+    (a patch 2 m away) is tried by neither arm."""
     s, truth, fit, pts = scene
     parts = body.part_labels.numpy()
     own = dict(truth, local_rotmats=fit["local_rotmats"], betas=s["betas"], transl=s["transl"])
     assert fit_lost_hand(body, pts, own, parts) is None
+    seen = np.zeros(22)  # the network's share of the points per part: the left hand seen, the right not
+    seen[LIMBS["left_arm"][2]] = 0.02
+    rec = fit_lost_hand(body, pts, fit, parts, seen=seen)
+    assert rec is None or "left_arm" not in rec["tried"], rec
+    seen[LIMBS["left_arm"][2]] = 0.005
+    assert fit_lost_hand(body, pts, fit, parts, seen=seen)["arm"] == "left_arm"
     rng = np.random.default_rng(0)
     patch = truth["vertices"].mean(0) + np.array([2.0, 0.0, 0.0]) + rng.normal(scale=0.02, size=(60, 3))
     assert fit_lost_hand(body, np.concatenate([pts, patch]), own, parts) is None

@@ -255,6 +255,7 @@ def run(
             "group": it["group"], "name": it["name"], "status": r.status, "message": r.message,
             "v2v_cm": v2v, "chamfer_cm": chamfer, "body": it.get("vertices") is not None,
             "usable": (v2v is not None and v2v <= usable_cm), "quality": q,
+            "crossing": (r.crossing or {}).get("taken", ""),
             "seconds": time.perf_counter() - t,
         })  # fmt: skip
         shown = "-" if v2v is None else f"{v2v:.2f}"

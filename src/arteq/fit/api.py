@@ -1328,7 +1328,8 @@ class Fitter:
             conditions = [it.get("conditions") for it in items]
             crossing, t_cross, checked = self._crossings(ref_in, probs_fit, modes, fit, conditions, fixed)
             if self.crossing.lost_hand and not fixed:
-                self._lost_hands(ref_in, modes, fit, crossing, t_cross, checked)
+                seen = [np.bincount(p.argmax(-1), minlength=probs_ref.shape[-1]) for p in probs_ref]
+                self._lost_hands(ref_in, modes, fit, crossing, t_cross, checked, seen)
             local, betas, transl = fit["local_rotmats"], fit["betas"], fit["transl"]
             verts, joints, grot = fit["vertices"], fit["joints"], fit["global_rotmats"]
         import roma
@@ -1700,10 +1701,12 @@ class Fitter:
 
     def _lost_hands(
         self, ref_in: list[np.ndarray], modes: list[dict[str, Any]], fit: dict, records: list[dict | None],
-        seconds: list[float], checked: list[dict | None],
+        seconds: list[float], checked: list[dict | None], seen: list[np.ndarray],
     ) -> None:  # fmt: skip
         """:func:`arteq.fit.lost_hand.fit_lost_hand` on each full scan of ``fit`` (the crossed-limb step's
-        tensors, updated in place where an arm is kept); its record under ``"lost_hand"`` of the scan's
+        tensors, updated in place where an arm is kept) that scores at most
+        ``CrossingConfig.reach_max_score_cm`` (above it the fit is lost as a whole: the torso step's case);
+        ``seen``: per scan, the network's points of each part. Its record under ``"lost_hand"`` of the scan's
         crossing record (``records``, created where there was none; ``"hand_<arm>"`` added to its
         ``taken``), its seconds added to ``seconds``, ``checked`` cleared where the fit changed."""
         from arteq.fit.crossing import surface_score
@@ -1715,7 +1718,10 @@ class Fitter:
                 continue
             t0 = time.perf_counter()
             row = {k: fit[k][i].detach().double().cpu().numpy() for k in fit}
-            rec = fit_lost_hand(self.body, ref_in[i], row, self.vertex_parts)
+            if surface_score(ref_in[i], row["vertices"], self.subset) > self.crossing.reach_max_score_cm:
+                continue
+            share = seen[i] / max(1, len(ref_in[i]))
+            rec = fit_lost_hand(self.body, ref_in[i], row, self.vertex_parts, seen=share)
             if rec is None:
                 continue
             if records[i] is None:

@@ -9,15 +9,18 @@ placement of :mod:`arteq.fit.reach`, which aims a whole two-segment chain along 
 by the middle of a forearm there). Measured on scans of the stock Anny model with curled fingers:
 experiments/fitting/lost_hand/README.md.
 
-:func:`fit_lost_hand` works on one fit, after every whole-body step, on a local objective that a hand
-changes by its whole weight:
+:func:`fit_lost_hand` works on one fit, after every whole-body step (the fitter runs it where the fit scores
+at most ``CrossingConfig.reach_max_score_cm``: above, the fit is lost as a whole), on a local objective that
+a hand changes by its whole weight:
 
 * the group: the largest group of scan points farther than ``far_m`` from the fit, linked within
   ``link_m`` (:func:`arteq.fit.reach.off_group`), of at least ``min_points``;
-* per arm that can reach the group's centre, a start with the hand on it: the hand's centre put on the
-  group's far end from the shoulder (the mean of its ``far_share`` farthest points: all of a fist, the end
-  of a whole arm), the elbow on its circle where the two segments lie nearest the scan
-  (:func:`place_hand`);
+* per arm that can reach the group's centre and whose hand the network gave under ``max_hand_share`` of
+  the points (a hand it saw is not lost: a group by it is something else, a pike's leg), a start with the
+  hand on it: the hand's centre put on the group's far end from the shoulder (the mean of its
+  ``far_share`` farthest points: all of a fist, the end of a whole arm), the elbow on its circle where the
+  two segments lie nearest the scan (two starts: the best supported elbow and the best of the circle's
+  other half; :func:`place_hand`);
 * from there the arm's three joints (shoulder, elbow, wrist) alone are fitted, ``iters`` Adam steps, on the
   scan points within the arm's reach: each to its nearest vertex of the whole body (the rest of the body
   held; the points' term), and each of the arm's vertices to its nearest scan point (the farthest ``trim``
@@ -64,6 +67,7 @@ class LostHandConfig:
     min_gain: float = 0.1
     points_slack: float = 0.03
     rest_cm: float = 1.0  # points the rest of the body explains this well stay its (a constant term)
+    max_hand_share: float = 0.01  # an arm whose hand the network gave this share of the points is not tried
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -144,6 +148,7 @@ def fit_lost_hand(
     fit: dict[str, np.ndarray],
     parts: np.ndarray,
     config: LostHandConfig | None = None,
+    seen: np.ndarray | None = None,
 ) -> dict | None:
     """One fit's lost-hand step (module docstring).
 
@@ -153,6 +158,9 @@ def fit_lost_hand(
         fit: ``local_rotmats [22, 3, 3]``, ``global_rotmats``, ``joints [22, 3]``, ``vertices [V, 3]``,
             ``betas [nb]``, ``transl [3]`` of one fit.
         parts: each vertex's part ``[V]``.
+        seen: the share of the scan's points the network gives each part ``[22]``; an arm whose hand has
+            ``max_hand_share`` or more of them is not tried (its hand was seen: the group is something
+            else, a pike's leg); None: every arm.
     Returns:
         None where nothing was tried (no such group, or none in an arm's reach); else ``{"arm": the arm kept
         or "", "group": its points, "tried": {arm: {"before": [points' term, arm's term] of the fit,
@@ -181,6 +189,8 @@ def fit_lost_hand(
     best = None
     for limb in ARMS:
         root, mid, end = LIMBS[limb]
+        if seen is not None and seen[end] >= cfg.max_hand_share:
+            continue
         moving = np.isin(parts, _branch(limb))
         reach = np.linalg.norm(joints[mid] - joints[root]) + np.linalg.norm(joints[end] - joints[mid])
         reach += np.linalg.norm(verts[parts == end] - joints[end], axis=1).max(initial=0.0)  # stretched out
