@@ -66,3 +66,11 @@ def reading_of(vertices, pose, betas, transl) -> type:
             }
 
     return Reading
+
+
+def unit(v):
+    """``v`` as a float64 unit vector."""
+    import numpy as np
+
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)

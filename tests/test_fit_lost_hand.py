@@ -10,16 +10,12 @@ from arteq.fit.lost_hand import LostHandConfig, fit_lost_hand, place_hand
 from arteq.fit.reach import LIMBS, aim_limb
 from arteq.fit.refine import branch_parts
 from fit_helpers import posed as _posed
+from fit_helpers import unit as _unit
 
 
 @pytest.fixture(scope="module")
 def body(anny22):
     return anny22
-
-
-def _unit(v):
-    v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v)
 
 
 @pytest.fixture(scope="module")
