@@ -200,6 +200,8 @@ def fit_lost_hand(
         far = np.linalg.norm(group - joints[root], axis=1)
         target = group[far >= np.quantile(far, 1.0 - cfg.far_share)].mean(0)
         near = pts[np.linalg.norm(pts - joints[root], axis=1) <= reach + cfg.far_m]
+        if len(near) < cfg.min_points:  # (a group whose centre is in reach but whose points are not)
+            continue
         near_tree = cKDTree(near)
         d_rest = cKDTree(verts[~moving]).query(near)[0] * 100
         # points the rest of the body explains within rest_cm count as explained by it (a constant): the
