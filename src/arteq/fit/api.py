@@ -1322,14 +1322,15 @@ class Fitter:
         crossing: list[dict | None] = [None] * len(items)
         t_cross = [0.0] * len(items)
         checked: list[dict | None] = [None] * len(items)  # the check's values where the fit stays as checked
+        # the network's points per part (the lost-hand step, the results)
+        counts = [np.bincount(p.argmax(-1), minlength=probs_ref.shape[-1]) for p in probs_ref]
         if self.refine and self.crossing is not None:
             fit = {"local_rotmats": local, "betas": betas, "transl": transl, "vertices": verts,
                    "joints": joints, "global_rotmats": grot}  # fmt: skip
             conditions = [it.get("conditions") for it in items]
             crossing, t_cross, checked = self._crossings(ref_in, probs_fit, modes, fit, conditions, fixed)
             if self.crossing.lost_hand and not fixed:
-                seen = [np.bincount(p.argmax(-1), minlength=probs_ref.shape[-1]) for p in probs_ref]
-                self._lost_hands(ref_in, modes, fit, crossing, t_cross, checked, seen)
+                self._lost_hands(ref_in, modes, fit, crossing, t_cross, checked, counts)
             local, betas, transl = fit["local_rotmats"], fit["betas"], fit["transl"]
             verts, joints, grot = fit["vertices"], fit["joints"], fit["global_rotmats"]
         import roma
@@ -1343,7 +1344,6 @@ class Fitter:
         )
         per_scan_net, per_scan_ref = t_net / len(items), t_ref / len(items)
         results = []
-        counts = [np.bincount(p.argmax(-1), minlength=probs_ref.shape[-1]) for p in probs_ref]
         for i, it in enumerate(items):
             t2 = time.perf_counter()
             mode = modes[i]
@@ -1709,7 +1709,6 @@ class Fitter:
         ``seen``: per scan, the network's points of each part. Its record under ``"lost_hand"`` of the scan's
         crossing record (``records``, created where there was none; ``"hand_<arm>"`` added to its
         ``taken``), its seconds added to ``seconds``, ``checked`` cleared where the fit changed."""
-        from arteq.fit.crossing import surface_score
         from arteq.fit.lost_hand import fit_lost_hand
 
         for i in range(len(ref_in)):
@@ -1718,17 +1717,16 @@ class Fitter:
                 continue
             t0 = time.perf_counter()
             row = {k: fit[k][i].detach().double().cpu().numpy() for k in fit}
-            if surface_score(ref_in[i], row["vertices"], self.subset) > self.crossing.reach_max_score_cm:
-                continue
             share = seen[i] / max(1, len(ref_in[i]))
-            rec = fit_lost_hand(self.body, ref_in[i], row, self.vertex_parts, seen=share)
+            rec = fit_lost_hand(self.body, ref_in[i], row, self.vertex_parts, seen=share, subset=self.subset,
+                                max_score_cm=self.crossing.reach_max_score_cm)  # fmt: skip
             if rec is None:
                 continue
             if records[i] is None:
                 doubt = describe_flags(q) if q is not None and verdict(q["flags"]) == "uncertain" else ""
-                records[i] = {"score_cm": round(surface_score(ref_in[i], row["vertices"], self.subset), 4),
-                              "tried_cm": {}, "stopped": {}, "taken": "", "first_doubt": doubt}  # fmt: skip
-            records[i]["lost_hand"] = {k: v for k, v in rec.items() if k != "local_rotmats"}
+                records[i] = {"score_cm": round(rec["score_cm"], 4), "tried_cm": {}, "stopped": {},
+                              "taken": "", "first_doubt": doubt}  # fmt: skip
+            records[i]["lost_hand"] = {k: v for k, v in rec.items() if k not in ("local_rotmats", "score_cm")}
             if rec["arm"]:
                 taken = records[i]["taken"]
                 records[i]["taken"] = (taken + "+" if taken else "") + "hand_" + rec["arm"]

@@ -149,6 +149,8 @@ def fit_lost_hand(
     parts: np.ndarray,
     config: LostHandConfig | None = None,
     seen: np.ndarray | None = None,
+    subset: np.ndarray | None = None,
+    max_score_cm: float = float("inf"),
 ) -> dict | None:
     """One fit's lost-hand step (module docstring).
 
@@ -161,11 +163,15 @@ def fit_lost_hand(
         seen: the share of the scan's points the network gives each part ``[22]``; an arm whose hand has
             ``max_hand_share`` or more of them is not tried (its hand was seen: the group is something
             else, a pike's leg); None: every arm.
+        subset, max_score_cm: with a group found, nothing is tried where the fit's surface score
+            (:func:`arteq.fit.crossing.surface_score` over the ``subset`` vertices) is above ``max_score_cm``
+            (a fit lost as a whole); the score is computed only then, and only with ``subset``.
     Returns:
-        None where nothing was tried (no such group, or none in an arm's reach); else ``{"arm": the arm kept
-        or "", "group": its points, "tried": {arm: {"before": [points' term, arm's term] of the fit,
-        "after": the same of the arm placed}}}`` and, where an arm is kept, ``"local_rotmats"`` (``[22, 3,
-        3]`` numpy).
+        None where nothing was tried (no such group, a fit scoring above ``max_score_cm``, or no arm in
+        reach); else ``{"arm": the arm kept or "", "group": its points, "score_cm": the fit's surface score
+        (None without ``subset``), "tried": {arm: {"before": [points' term, arm's term] of the fit, "after":
+        the same of the arm placed}}}`` and, where an arm is kept, ``"local_rotmats"`` (``[22, 3, 3]``
+        numpy).
     """
     from scipy.spatial import cKDTree
 
@@ -176,6 +182,13 @@ def fit_lost_hand(
     group = off_group(pts, verts, cfg.far_m, cfg.link_m)
     if len(group) < cfg.min_points:
         return None
+    score = None
+    if subset is not None:  # only now: most fits have no such group
+        from arteq.fit.crossing import surface_score
+
+        score = surface_score(pts, verts, subset)
+        if score > max_score_cm:
+            return None
     centre = group.mean(0)
     tree = cKDTree(pts)
     local = np.asarray(fit["local_rotmats"], dtype=np.float64)
@@ -185,7 +198,7 @@ def fit_lost_hand(
     transl = torch.as_tensor(np.asarray(fit["transl"])[None], dtype=dtype, device=device)
     with torch.no_grad():
         rest, rest_joints = body.shape(betas)
-    record: dict = {"arm": "", "group": int(len(group)), "tried": {}}
+    record: dict = {"arm": "", "group": int(len(group)), "score_cm": score, "tried": {}}
     best = None
     for limb in ARMS:
         root, mid, end = LIMBS[limb]
