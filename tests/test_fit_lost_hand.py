@@ -131,5 +131,38 @@ def test_the_fitter_puts_the_hand_back_and_says_so(body, scene, tmp_path, tiny_n
         taken[on] = (r.crossing or {}).get("taken", "")
         if on:
             assert r.crossing["lost_hand"]["arm"] == "left_arm", r.crossing
+            assert "hand_off_fit" not in r.quality["flags"], r.quality  # put back: nothing to flag
     assert "hand_left_arm" in taken[True] and "hand_" not in taken[False], taken
     assert err[True] < 4.0 < 15.0 < err[False], err
+
+
+def test_a_hand_the_step_cannot_put_back_is_flagged(body, scene, tmp_path, tiny_net, monkeypatch):
+    """Where the step tries arms and keeps none (here: made unable to keep any), the fit is written
+    ``uncertain`` with ``hand_off_fit`` and a reason naming the group and the arm; with
+    ``lost_hand_flag=False`` the same fit is not flagged for it."""
+    import functools
+
+    import arteq.fit.lost_hand as lost_hand
+    from arteq.fit.crossing import CrossingConfig
+    from arteq.fit.refine import RefineConfig
+    from fit_helpers import reading_of, write_tiny_checkpoint
+
+    s, truth, fit, pts = scene
+    monkeypatch.setattr(lost_hand, "LostHandConfig", functools.partial(LostHandConfig, min_gain=10.0))
+    ckpt = write_tiny_checkpoint(tmp_path / "tiny.ckpt", tiny_net)
+    Down = reading_of(fit["vertices"], fit["local_rotmats"], s["betas"], s["transl"])
+    flags = {}
+    for flag in (True, False):
+        alone = CrossingConfig(reach=False, torso=False, doubtful_tries_all=False, near_m=0.0,
+                               lost_hand_flag=flag)  # fmt: skip
+        f = Down(ckpt=ckpt, device="cpu", anny=False, retries=0, hands=False,
+                 refine_config=RefineConfig(iters=0), crossing=alone)  # fmt: skip
+        r = f.fit_points(pts)
+        assert r.crossing["lost_hand"]["arm"] == "" and "left_arm" in r.crossing["lost_hand"]["tried"]
+        assert _hand_error_cm(body, r.vertices.astype(np.float64), truth) > 15.0  # still lost
+        flags[flag] = r.quality["flags"]
+        if flag:
+            assert r.status == "uncertain", r.status
+            assert r.quality["hand_off_points"] == r.crossing["lost_hand"]["group"] >= 20
+            assert "by the left arm" in r.uncertain_reason and "hand may be" in r.uncertain_reason, r.message
+    assert "hand_off_fit" in flags[True] and "hand_off_fit" not in flags[False], flags

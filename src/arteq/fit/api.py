@@ -1324,13 +1324,14 @@ class Fitter:
         checked: list[dict | None] = [None] * len(items)  # the check's values where the fit stays as checked
         # the network's points per part (the lost-hand step, the results)
         counts = [np.bincount(p.argmax(-1), minlength=probs_ref.shape[-1]) for p in probs_ref]
+        unplaced: list[dict | None] = [None] * len(items)  # a hand-sized group no arm could be put on
         if self.refine and self.crossing is not None:
             fit = {"local_rotmats": local, "betas": betas, "transl": transl, "vertices": verts,
                    "joints": joints, "global_rotmats": grot}  # fmt: skip
             conditions = [it.get("conditions") for it in items]
             crossing, t_cross, checked = self._crossings(ref_in, probs_fit, modes, fit, conditions, fixed)
             if self.crossing.lost_hand and not fixed:
-                self._lost_hands(ref_in, modes, fit, crossing, t_cross, checked, counts)
+                self._lost_hands(ref_in, modes, fit, crossing, t_cross, checked, counts, unplaced)
             local, betas, transl = fit["local_rotmats"], fit["betas"], fit["transl"]
             verts, joints, grot = fit["vertices"], fit["joints"], fit["global_rotmats"]
         import roma
@@ -1365,6 +1366,11 @@ class Fitter:
                 # vertices (experiments/fitting/crossing.md)
                 q["flags"].append("refitted")
                 q["first_doubt"] = crossing[i]["first_doubt"]
+            if unplaced[i] is not None and self.crossing.lost_hand_flag:
+                # a group off the fit by an arm whose hand the network did not see, that no placed arm
+                # explained: the hand may lie elsewhere (experiments/fitting/lost_hand/README.md)
+                q["flags"].append("hand_off_fit")
+                q.update({f"hand_off_{k}": v for k, v in unplaced[i].items()})
             cleaned = it.get("clean")
             if cleaned is not None and "second_body" in cleaned.flags:
                 q["flags"].append("second_body")
@@ -1702,13 +1708,16 @@ class Fitter:
     def _lost_hands(
         self, ref_in: list[np.ndarray], modes: list[dict[str, Any]], fit: dict, records: list[dict | None],
         seconds: list[float], checked: list[dict | None], seen: list[np.ndarray],
+        unplaced: list[dict | None] | None = None,
     ) -> None:  # fmt: skip
         """:func:`arteq.fit.lost_hand.fit_lost_hand` on each full scan of ``fit`` (the crossed-limb step's
         tensors, updated in place where an arm is kept) that scores at most
         ``CrossingConfig.reach_max_score_cm`` (above it the fit is lost as a whole: the torso step's case);
         ``seen``: per scan, the network's points of each part. Its record under ``"lost_hand"`` of the scan's
         crossing record (``records``, created where there was none; ``"hand_<arm>"`` added to its
-        ``taken``), its seconds added to ``seconds``, ``checked`` cleared where the fit changed."""
+        ``taken``), its seconds added to ``seconds``, ``checked`` cleared where the fit changed; where arms
+        were tried and none kept, the group's size and the arms tried in ``unplaced`` (the check's
+        ``hand_off_fit``)."""
         from arteq.fit.lost_hand import fit_lost_hand
 
         for i in range(len(ref_in)):
@@ -1727,6 +1736,11 @@ class Fitter:
                 records[i] = {"score_cm": round(rec["score_cm"], 4), "tried_cm": {}, "stopped": {},
                               "taken": "", "first_doubt": doubt}  # fmt: skip
             records[i]["lost_hand"] = {k: v for k, v in rec.items() if k not in ("local_rotmats", "score_cm")}
+            if not rec["arm"] and unplaced is not None:
+                unplaced[i] = {
+                    "points": int(rec["group"]),
+                    "arms": " and ".join(a.replace("_", " ") for a in rec["tried"]),
+                }
             if rec["arm"]:
                 taken = records[i]["taken"]
                 records[i]["taken"] = (taken + "+" if taken else "") + "hand_" + rec["arm"]

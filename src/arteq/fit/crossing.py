@@ -116,6 +116,9 @@ class CrossingConfig:
     #: objective (:mod:`arteq.fit.lost_hand`): a fist near the knees that the network gave none of the
     #: hand's points. On since 2026-12-07 (experiments/fitting/lost_hand/README.md)
     lost_hand: bool = True
+    #: where that step tried arms and kept none, the check flags the fit (``hand_off_fit``, uncertain: a
+    #: doubted full scan is then retried); off, it is written as the other checks say
+    lost_hand_flag: bool = True
 
     @classmethod
     def from_strings(cls, items: list[str] | tuple[str, ...], **base) -> CrossingConfig:

@@ -56,6 +56,9 @@ Clutter removal (:mod:`arteq.fit.clean`) adds the refusing flag ``second_body`` 
 second body-sized cluster apart from the fitted one (two people). The crossed-limb step
 (:mod:`arteq.fit.crossing`) adds ``refitted`` (uncertain) to a fit it replaced after the check had doubted
 the first one, when the replacement passes: the surface values pass refits whose vertices are still wrong.
+The lost-hand step (:mod:`arteq.fit.lost_hand`) adds ``hand_off_fit`` (uncertain) where it found a group of
+points off the fit by an arm whose hand the network did not see and could put no arm on it: a group too
+small for ``off_fit_limb`` (a fist is 1-3 % of the points), with the hand fitted elsewhere beside it.
 """
 
 from __future__ import annotations
@@ -374,6 +377,11 @@ def describe_flags(q: dict, flags: list[str] | None = None) -> str:
         "off_fit_limb": (
             f"{q.get('off_group_frac', 0.0):.1%} of the points, {q.get('off_group_cm', 0.0):.0f} cm across, "
             "lie off the fit together: a limb fitted elsewhere, or an object touching the body"
+        ),
+        "hand_off_fit": (
+            f"{q.get('hand_off_points', 0)} points lie off the fit by the {q.get('hand_off_arms', 'arm')}, "
+            "whose hand the network did not see, and no arm put on them explained them: a hand may be "
+            "fitted elsewhere"
         ),
         "second_body": (
             f"a second body-sized object beside it ({q.get('second_body_points', 0)} points, "
