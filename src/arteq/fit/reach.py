@@ -246,3 +246,69 @@ def reach_starts(
         d1, d2, _ = place_limb(group, tree, vertices, joints, parts, limb, dirs)
         out[PREFIX + limb] = aim_limb(local, global_rot, joints, limb, d1, d2)
     return out
+
+
+#: the prefix of a limb-search start's name (:func:`limb_search_starts`; ``limb_left_arm``, and for two
+#: limbs placed in turn ``limb_left_arm+right_arm``)
+SEARCH_PREFIX = "limb_"
+#: the limb pairs a search also places in turn (the second from where the first was placed)
+SEARCH_PAIRS = (("left_arm", "right_arm"), ("right_arm", "left_arm"), ("left_leg", "right_leg"))
+
+
+def limb_search_starts(
+    points: np.ndarray,
+    betas: torch.Tensor,
+    transl: torch.Tensor,
+    local: np.ndarray,
+    body: torch.nn.Module,
+    parts: np.ndarray,
+    far_m: float = 0.04,
+    min_points: int = 30,
+    dirs: int = 162,
+) -> dict[str, np.ndarray]:
+    """Per limb, the local rotations ``[22, 3, 3]`` with the limb placed (:func:`place_limb`) on the scan
+    points within its reach that the *rest* of the body leaves unexplained (farther than ``far_m`` from
+    every vertex not moved by the limb), named ``limb_<limb>``; and for each of :data:`SEARCH_PAIRS` the
+    second limb placed the same way from the first's start (``limb_<a>+<b>``). Limbs with fewer than
+    ``min_points`` such points get none.
+
+    Unlike :func:`reach_starts`, whose group is what the whole fit leaves off, this sees points that a
+    misplaced limb itself covers (a bow's arm laid along the back explains part of the points of the arm
+    that holds the ankle): for fits lost as a whole, where the group off the fit is spread over the body.
+    ``betas [1, nb]``, ``transl [1, 3]``: the fit's; ``points`` in its frame (metres)."""
+    from scipy.spatial import cKDTree
+
+    from arteq.fit.refine import branch_parts
+
+    pts = np.asarray(points, dtype=np.float64)
+    tree = cKDTree(pts)
+    dtype = body.v_template.dtype
+
+    def placed(start: np.ndarray, limb: str) -> np.ndarray | None:
+        with torch.no_grad():
+            o = body(
+                betas=betas.to(dtype), pose=torch.as_tensor(start, dtype=dtype)[None], transl=transl.to(dtype)
+            )
+        verts, joints = o.vertices[0].double().cpu().numpy(), o.joints[0].double().cpu().numpy()
+        root, mid, end = LIMBS[limb]
+        moving = np.isin(parts, branch_parts(root))
+        reach = np.linalg.norm(joints[mid] - joints[root]) + np.linalg.norm(joints[end] - joints[mid])
+        reach += np.linalg.norm(verts[parts == end] - joints[end], axis=1).max(initial=0.0)
+        left = cKDTree(verts[~moving]).query(pts)[0] > far_m
+        group = pts[left & (np.linalg.norm(pts - joints[root], axis=1) <= reach)]
+        if len(group) < min_points:
+            return None
+        d1, d2, _ = place_limb(group, tree, verts, joints, parts, limb, dirs)
+        return aim_limb(start, o.global_rotmats[0].double().cpu().numpy(), joints, limb, d1, d2)
+
+    out: dict[str, np.ndarray] = {}
+    for limb in LIMBS:
+        start = placed(local, limb)
+        if start is not None:
+            out[SEARCH_PREFIX + limb] = start
+    for a, b in SEARCH_PAIRS:
+        if SEARCH_PREFIX + a in out:
+            start = placed(out[SEARCH_PREFIX + a], b)
+            if start is not None:
+                out[f"{SEARCH_PREFIX}{a}+{b}"] = start
+    return out
