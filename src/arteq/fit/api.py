@@ -30,7 +30,7 @@ from arteq.fit.conditions import denoise, scan_conditions
 from arteq.fit.crossing import CrossingConfig, pairs_to_try, try_swaps
 from arteq.fit.quality import REFUSE_FLAGS, QualityThresholds, describe_flags, fit_quality, verdict
 from arteq.fit.reach import PREFIX as REACH
-from arteq.fit.reach import limb_search_starts, reach_starts
+from arteq.fit.reach import reach_starts
 from arteq.fit.refine import RefineConfig, body_tables, refine, refine_iteration
 from arteq.fit.torso_turns import torso_starts
 from arteq.io.scans import MIN_POINTS, UNITS, ScanError, check_body_size, clean_points
@@ -1681,12 +1681,6 @@ class Fitter:
                 verts = fit["vertices"][i].detach().double().cpu().numpy()
                 if surface_score(ref_in[i], verts, self.subset) > cfg.reach_max_score_cm:
                     extra[i] = torso_starts(fit["global_rotmats"][i].detach().double().cpu().numpy())
-                    if cfg.torso_limbs:
-                        local = fit["local_rotmats"][i].detach().double().cpu().numpy()
-                        extra[i].update(limb_search_starts(
-                            ref_in[i], fit["betas"][i : i + 1], fit["transl"][i : i + 1], local, self.body,
-                            self.vertex_parts, self.thresholds.off_fit_cm / 100, cfg.reach_min_points,
-                        ))  # fmt: skip
                 elif rnd > 0:  # the torso kept has brought the fit in: a limb may still be off
                     extra[i] = self._reach(ref_in[i], fit, i)
             if not any(extra):

@@ -103,9 +103,6 @@ class CrossingConfig:
     #: ``reach_max_score_cm``, else its limbs placed (``reach``); kept by the ``min_gain`` rule, whatever the
     #: fit's score (``max_score_cm`` does not apply); experiments/scan_model/spine/torso/
     torso: bool = True
-    #: in those rounds, beside the torso turns, each limb placed on the points the rest of the body leaves
-    #: unexplained (:func:`arteq.fit.reach.limb_search_starts`)
-    torso_limbs: bool = False
     torso_iters: int = 60
     torso_rounds: int = 2
     #: with the fitter's retries on (``Fitter(retries=...)``, ``torso_retry``): the torso step is left out of
