@@ -175,6 +175,21 @@ def test_verdict_on_calibration_values(values, expected):
     assert verdict(_flags(inl, cov, parts, beta, ext)) == expected
 
 
+def test_a_lost_single_body_is_not_refused_as_something_beside_it():
+    """``unexplained_points`` needs the scan to hold more surface than the fitted body: a pike's lost fit
+    (user suite seed 2: 55 % inliers, 90 % coverage, surface ratio 1.09) is uncertain, written and
+    flagged; with a second body's surface beside it (ratio 2.0) the same values are refused; records
+    without the ratio keep the old verdict."""
+    pike = {"inlier_frac": 0.546, "coverage": 0.897, "parts_covered": 20, "max_abs_beta": 1.0,
+            "extent_m": 1.6, "rmse_in_cm": 1.2}  # fmt: skip
+    flags = quality_flags({**pike, "surface_ratio": 1.09})
+    assert "unexplained_points" not in flags and verdict(flags) == "uncertain", flags
+    assert "low_inliers" in flags and "low_coverage" in flags, flags
+    two = quality_flags({**pike, "surface_ratio": 2.0})
+    assert "unexplained_points" in two and verdict(two) == "not_single_body", two
+    assert verdict(quality_flags(pike)) == "not_single_body"
+
+
 def test_shipped_model_refuses_a_sphere_two_people_and_a_capsule(body, tmp_path):
     """The shipped network through ``arteq-fit``: a sphere, two people side by side and a capsule get
     ``not_single_body`` with the reason, nothing written for them; exit code 1."""
