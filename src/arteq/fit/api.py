@@ -1707,8 +1707,7 @@ class Fitter:
 
     def _lost_hands(
         self, ref_in: list[np.ndarray], modes: list[dict[str, Any]], fit: dict, records: list[dict | None],
-        seconds: list[float], checked: list[dict | None], seen: list[np.ndarray],
-        unplaced: list[dict | None] | None = None,
+        seconds: list[float], checked: list[dict | None], seen: list[np.ndarray], unplaced: list[dict | None],
     ) -> None:  # fmt: skip
         """:func:`arteq.fit.lost_hand.fit_lost_hand` on each full scan of ``fit`` (the crossed-limb step's
         tensors, updated in place where an arm is kept) that scores at most
@@ -1736,7 +1735,7 @@ class Fitter:
                 records[i] = {"score_cm": round(rec["score_cm"], 4), "tried_cm": {}, "stopped": {},
                               "taken": "", "first_doubt": doubt}  # fmt: skip
             records[i]["lost_hand"] = {k: v for k, v in rec.items() if k not in ("local_rotmats", "score_cm")}
-            if not rec["arm"] and unplaced is not None:
+            if not rec["arm"]:
                 unplaced[i] = {
                     "points": int(rec["group"]),
                     "arms": " and ".join(a.replace("_", " ") for a in rec["tried"]),
