@@ -392,11 +392,21 @@ def measurement_errors(anny: dict, truth: dict) -> dict:
             "waist_err_cm": (m["waist_circumference_m"] - truth["waist_circumference_m"]) * 100}  # fmt: skip
 
 
-def fit_scan(fitter, scan: Scan, other=None) -> dict:
-    """Fit one scan and compare it with its ground truth (and, for clutter, with the clean scan's fit)."""
+def fit_scan(fitter, scan: Scan, other=None, dump: str | None = None) -> dict:
+    """Fit one scan and compare it with its ground truth (and, for clutter, with the clean scan's fit).
+    ``dump``: a folder to write each body's fit and truth to (``<stem>.npz``: fitted and true vertices and
+    joints, the scan, the network's and the fit's part per point, each point's distance to the fit, the
+    status), for probes that study the fits without fitting again."""
     t = time.perf_counter()
     r = fitter.fit_points(scan.points, name=scan.name)
     wall = time.perf_counter() - t
+    if dump and r.vertices is not None and scan.vertices is not None:
+        np.savez_compressed(
+            Path(dump) / f"{file_stem(scan.name)}.npz", fit=r.vertices.astype(np.float32),
+            truth=scan.vertices.astype(np.float32), points=scan.points.astype(np.float32),
+            fit_joints=r.joints, truth_joints=scan.joints, labels=r.point_labels,
+            fit_labels=r.point_fit_labels, dist=r.point_distance, status=r.status,
+        )  # fmt: skip
     rec = {"group": scan.group, "name": scan.name, "status": r.status,
            "reason": r.uncertain_reason or r.message, "fit_s": r.timings.get("total"),
            "anny_s": r.timings.get("anny"), "wall_s": wall, "body": scan.vertices is not None}  # fmt: skip
@@ -601,11 +611,13 @@ def run_people(a) -> None:
         **({"second_start": False} if a.no_second_start else {}),
         **({"hands": False} if a.no_hands else {}),
     )
+    if a.dump_fits:
+        Path(a.dump_fits).mkdir(parents=True, exist_ok=True)
     fitter = Fitter(anny=True, **kw)
     other = Fitter(anny=False, seed=1, **kw)
     records = []
     for s in scans:
-        rec = fit_scan(fitter, s, other)
+        rec = fit_scan(fitter, s, other, dump=a.dump_fits)
         records.append(rec)
         print(f"{rec['group']:10s} {rec['name']:52s} {rec['status']:15s} V2V {_f(rec.get('v2v_cm'))} "
               f"J15 {_f(rec.get('joints15_cm'))} stature {_f(rec.get('stature_err_cm'), signed=True)} "
@@ -740,6 +752,7 @@ def main(argv: list[str] | None = None) -> None:
                     help="people: comma-separated groups --export writes, or all (default children,clutter)")
     ap.add_argument("--export-only", action="store_true", help="people: write them (--export) and stop")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--dump-fits", default=None, help="people: each fit's npz here")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="people: RefineConfig fields")
     ap.add_argument("--crossing", nargs="*", default=[], metavar="KEY=VALUE", help="people: CrossingConfig fields")
     ap.add_argument("--clean", nargs="*", default=[], metavar="KEY=VALUE", help="people: CleanConfig fields")
