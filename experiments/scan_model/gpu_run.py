@@ -14,9 +14,11 @@
 
 The all-ages body and the fixed sets are read from ``$ARTEQ_CACHE_DIR`` (carry a prebuilt cache: the GPU
 machine has no ``anny``; with ``data.hand_curl=P``, curled hands in a share of the training clouds, carry
-``body_models/anny_allages_hands.npz`` in it too: docs/data.md). Validation runs at each epoch end on the cached validation set; test sets are
-left to a CPU run of ``python -m arteq.eval`` on the returned checkpoint. ``--device cpu`` checks the
-whole script here (tiny ``--budget``); experiments/scan_model/README.md, gpu7, has the calls.
+``body_models/anny_allages_hands.npz`` in it too: docs/data.md). Validation runs at each epoch end on the
+cached validation set; test sets are left to a CPU run of ``python -m arteq.eval`` on the returned
+checkpoint. ``--device cpu`` checks the whole script here (tiny ``--budget``);
+experiments/scan_model/README.md, gpu7, has the calls. An override of a key that ``RUN7`` sets replaces
+its value (:func:`with_overrides`).
 """
 
 from __future__ import annotations
@@ -49,6 +51,18 @@ RUN7 = [
     "data.view_splits=[front,side,back,top]",
     "mean_pose_baseline=false",
 ]
+
+
+def with_overrides(base: list[str], given: list[str]) -> list[str]:
+    """``base`` with each key that ``given`` sets again left out, then ``given``: a key's value is replaced,
+    not merged (Hydra merges a dict given twice, and refuses a key the first dict did not have, such as
+    ``athletic_spine`` in ``data.train_pose_mix``)."""
+
+    def key(o: str) -> str:
+        return o.split("=", 1)[0].lstrip("+~")
+
+    again = {key(o) for o in given}
+    return [o for o in base if key(o) not in again] + list(given)
 
 
 def probe(overrides: list[str], batches: list[int], steps: int, device: str) -> dict:
@@ -114,7 +128,7 @@ def main() -> None:
         "torch": torch.__version__,
         "workers": workers,
     }
-    overrides = [*RUN7, *a.overrides]
+    overrides = with_overrides(RUN7, a.overrides)
     report["probe"] = p = probe(overrides, a.batch, a.probe_steps, a.device)
     report["probe_wall_s"] = time.time() - t0
     rate = {b: b / max(s, b * p["data_s_per_cloud"] / workers) for b, s in p["step_s"].items()}
