@@ -27,7 +27,8 @@ clutter removal, the calibrated check; the Anny export on, timed apart).
   (an everyday scan, z up, with 10 % stray points in a 4 m box, or a room: floor and wall patches, a ball
   on the floor and 10 % stray points), compared with the fit of the same scan without its clutter, and the
   clean scan fitted again with another resampling seed (the floor of that number); ``non-bodies`` (two
-  spheres and two pairs of people side by side: must be refused).
+  spheres, two pairs of people side by side and, since 2026-12-08, an adult and a child touching: must be
+  refused).
 - Per scan: status, V2V (mean vertex distance to the true mesh, same Anny topology), Chamfer (symmetric
   surface distance; a fit is usable at <= 3 cm), the 15-joint error (:data:`JOINTS_15`: pelvis, neck,
   head, shoulders, elbows, wrists, hips, knees, ankles; mean distance of the fitted body's joints to the
@@ -366,6 +367,17 @@ def people_scans(
             v, _ = people.posed(people.person(pair_phen[2 * k + m]), pose, rot, off + m * gap * side)
             pts.append(surface_scan(v, faces, 2500, rng, curved=curved))
         scans.append(Scan("non-bodies", f"two people {gap} m apart", np.concatenate(pts)))
+    # an adult and a child (2-8 y) side by side, standing on one floor, 0.3 m between their pelvises: they
+    # touch, so the scan is one cluster (since 2026-12-08)
+    adult, child = (people.person(p) for p in (pair_phen[0], people.sample(1, (2.0, 8.0), 7900 + seed)[0]))
+    rot, off = z_up_heading(rng), rng.uniform(-2, 2, 3)
+    side = rot @ np.array([1.0, 0.0, 0.0])
+    (va, _), (vc, _) = (people.posed(p, pose_from_template(EVERYDAY["stand"], rng), rot, off + d * side)
+                        for p, d in ((adult, 0.0), (child, 0.3)))  # fmt: skip
+    vc[:, 2] += va[:, 2].min() - vc[:, 2].min()  # z up (z_up_heading)
+    pts = np.concatenate([surface_scan(va, faces, 3500, rng, curved=curved),
+                          surface_scan(vc, faces, 1500, rng, curved=curved)])  # fmt: skip
+    scans.append(Scan("non-bodies", "an adult and a child touching", pts))
     return scans
 
 

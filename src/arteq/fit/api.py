@@ -856,6 +856,8 @@ class Fitter:
             self._objects(items, results, exports)
         if (self.retries or self.torso_retry) and self.refine and self.check:
             self._retry(items, results, exports)
+        if self.refine and self.check:
+            self._second_person(items, results)
         if self.clothing is not None:  # refine is on (checked when built)
             self._under_clothes(items, results, exports)
         if self.hand_curl is not None:
@@ -1050,6 +1052,72 @@ class Fitter:
                 self._flag_refit(r2, first.uncertain_reason or describe_flags(first.quality))
                 results[i], exports[i], items[i] = r2, e2, it2
                 todo.append(i)
+
+    def _second_person(self, items: list[dict[str, Any]], results: list[FitResult]) -> None:
+        """Refuse (``second_person``, status ``not_single_body``) the written full fits that the scan covers
+        (``person_min_coverage``) and whose largest group of points off the fit (the check's ``off_group_*``)
+        is at least ``person_group_frac`` of the points and ``person_group_cm`` across, and is a body of its
+        own: fitted alone (network, refinement and check, without the recovery steps), a plausible body
+        that its own check does not refuse, with at least ``person_inliers`` of the group on it, covered
+        (``person_coverage``) with at least ``person_ratio`` of its surface (:class:`QualityThresholds`).
+        A child standing by an adult, touching, is one cluster, so clutter removal does not find two people,
+        and the adult's fit leaves the child off it; a limb fitted elsewhere leaves its fit uncovered and a
+        group that fits no whole body. The values go into the fit's quality (``second_person_*``) whenever
+        the group was fitted; the seconds into ``timings["second_person"]``."""
+        from arteq.fit.reach import off_group
+
+        th = self.thresholds
+        rows, tries = [], []
+        for i, (r, it) in enumerate(zip(results, items, strict=True)):
+            q = r.quality or {}
+            big = q.get("off_group_frac", 0.0) >= th.person_group_frac
+            big = big and q.get("off_group_cm", 0.0) >= th.person_group_cm
+            big = big and q.get("coverage", 0.0) >= th.person_min_coverage
+            if r.scan_mode != "full" or not r.written or not big:
+                continue
+            s = r.scale_to_m
+            spacing = (it.get("conditions") or {}).get("spacing_m")
+            link_cm = th.off_link_cm if spacing is None else max(th.off_link_cm, 1.5 * spacing * 100)
+            far_cm = max(th.off_fit_cm, 2 * q.get("inlier_cm", th.inlier_cm))
+            group = off_group(r.scan_points.astype(np.float64) * s, r.vertices.astype(np.float64) * s,
+                              far_cm / 100, link_cm / 100)  # fmt: skip
+            kept = np.ones(len(group), bool)
+            try:
+                name = f"{r.name} (points off its fit)"
+                tries.append(self._item(name, group, kept, None, [], 1.0, "m", None, 0.0))
+            except ScanError:  # too few points, or too small for a body
+                continue
+            rows.append(i)
+        if not tries:
+            return
+        t0 = time.perf_counter()
+        crossing, self.crossing = self.crossing, None  # the group's first fit only
+        try:
+            found, _ = self._fit_batch(tries)
+        finally:
+            self.crossing = crossing
+        seconds = (time.perf_counter() - t0) / len(tries)
+        for i, r2 in zip(rows, found, strict=True):
+            r, q2 = results[i], r2.quality or {}
+            r.timings["second_person"] = seconds
+            r.timings["total"] += seconds
+            values = {"inliers": q2.get("inlier_frac", 0.0), "coverage": q2.get("coverage", 0.0),
+                      "ratio": q2.get("surface_ratio", 0.0)}  # fmt: skip
+            q, flags = r.quality, q2.get("flags") or []
+            q.update({f"second_person_{k}": float(v) for k, v in values.items()})
+            q.update(second_person_frac=q["off_group_frac"], second_person_cm=q["off_group_cm"],
+                     second_person_flags=" ".join(flags))  # fmt: skip
+            body = r2.vertices is not None and verdict(flags) != "not_single_body"
+            body = body and "implausible_shape" not in flags
+            on = values["inliers"] >= th.person_inliers and values["coverage"] >= th.person_coverage
+            if not (body and on and values["ratio"] >= th.person_ratio):
+                continue
+            q["flags"].append("second_person")
+            hard = [f for f in q["flags"] if f in REFUSE_FLAGS]
+            r.status, r.uncertain_reason = "not_single_body", ""
+            r.message = f"{r.name}: not a single body ({describe_flags(q, hard)})" + (
+                "; " + "; ".join(r.warnings) if r.warnings else ""
+            )
 
     def _flag_refit(self, r: FitResult, first_doubt: str) -> None:
         """A refit of a doubted fit that the check passes stays flagged (``refitted``): it was picked by its

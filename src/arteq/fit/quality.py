@@ -54,9 +54,12 @@ Values (``fit_quality``) and the reason codes they set (thresholds: :class:`Qual
   points form no group. Measured in experiments/fitting/off_fit.md.
 
 Clutter removal (:mod:`arteq.fit.clean`) adds the refusing flag ``second_body`` when the scan holds a
-second body-sized cluster apart from the fitted one (two people). The crossed-limb step
-(:mod:`arteq.fit.crossing`) adds ``refitted`` (uncertain) to a fit it replaced after the check had doubted
-the first one, when the replacement passes: the surface values pass refits whose vertices are still wrong.
+second body-sized cluster apart from the fitted one (two people). The fitter adds the refusing flag
+``second_person`` when, after its recovery steps, a body-sized group of points off the fit is a body of its
+own fitted alone (a child by an adult, touching: one cluster; ``QualityThresholds.person_*``). The
+crossed-limb step (:mod:`arteq.fit.crossing`) adds ``refitted`` (uncertain) to a fit it replaced after the
+check had doubted the first one, when the replacement passes: the surface values pass refits whose vertices
+are still wrong.
 The lost-hand step (:mod:`arteq.fit.lost_hand`) adds ``hand_off_fit`` (uncertain) where it found a group of
 points off the fit by an arm whose hand the network did not see and could put no arm on it: a group too
 small for ``off_fit_limb`` (a fist is 1-3 % of the points), with the hand fitted elsewhere beside it.
@@ -71,7 +74,8 @@ import numpy as np
 
 #: Reason codes that refuse a fit (the scan is not one body); every other code makes it uncertain.
 REFUSE_FLAGS = (
-    "no_body_surface", "unexplained_points", "wrong_size", "second_body", "extra_surface", "sphere", "tube"
+    "no_body_surface", "unexplained_points", "wrong_size", "second_body", "extra_surface", "sphere", "tube",
+    "second_person",
 )  # fmt: skip
 
 
@@ -127,6 +131,23 @@ class QualityThresholds:
     off_link_cm: float = 4.0
     max_off_group_frac: float = 0.01
     max_off_group_cm: float = 20.0
+    #: refused (``second_person``, by the fitter after its recovery steps: ``Fitter._second_person``): a
+    #: written full fit that the scan covers (coverage at least ``person_min_coverage``; a lost fit's limbs
+    #: lie where no points are: 0.69-0.94 over every recorded lost fit with such a group, an adult's fit by
+    #: a child 0.94-0.99) leaves a group off it of at least ``person_group_frac`` of the points and
+    #: ``person_group_cm`` across, and that group fitted alone is a body: not refused by its own check (a
+    #: tube, a sphere...), no ``implausible_shape``, at least ``person_inliers`` of its points within the
+    #: inlier distance, at least ``person_coverage`` of that body covered, its surface at least
+    #: ``person_ratio`` of that body's. A child standing by an adult, touching (one cluster, so not clutter
+    #: removal's ``second_body``): groups fitted alone 0.90-1.00 / 0.77-0.96 / 0.68-0.89; a leg or both
+    #: legs fitted away from their points: inliers 0.49-0.94, every one above 0.84 a tube or of implausible
+    #: shape (experiments/fitting/second_person/README.md)
+    person_min_coverage: float = 0.95
+    person_group_frac: float = 0.08
+    person_group_cm: float = 60.0
+    person_inliers: float = 0.88
+    person_coverage: float = 0.75
+    person_ratio: float = 0.65
 
 
 def fit_quality(
@@ -398,6 +419,11 @@ def describe_flags(q: dict, flags: list[str] | None = None) -> str:
             f"a second body-sized object beside it ({q.get('second_body_points', 0)} points, "
             f"{q.get('second_body_extent_m', 0.0):.1f} m across, "
             f"{q.get('second_body_gap_m', 0.0):.2f} m away)"
+        ),
+        "second_person": (
+            f"a second person beside it: {q.get('second_person_frac', 0.0):.0%} of the points, "
+            f"{q.get('second_person_cm', 0.0):.0f} cm across, lie off the fit and are a body of their own "
+            f"when fitted alone ({q.get('second_person_inliers', 0.0):.0%} of them on it)"
         ),
     }
     return "; ".join(parts[f] for f in (q["flags"] if flags is None else flags))
