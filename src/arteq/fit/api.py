@@ -28,7 +28,14 @@ from arteq.fit.clean import CleanConfig, CleanResult, clean_scan
 from arteq.fit.clothing import ClothingConfig
 from arteq.fit.conditions import denoise, scan_conditions
 from arteq.fit.crossing import CrossingConfig, pairs_to_try, try_swaps
-from arteq.fit.quality import REFUSE_FLAGS, QualityThresholds, describe_flags, fit_quality, verdict
+from arteq.fit.quality import (
+    REFUSE_FLAGS,
+    QualityThresholds,
+    describe_flags,
+    fit_quality,
+    off_group_distances,
+    verdict,
+)
 from arteq.fit.reach import PREFIX as REACH
 from arteq.fit.reach import reach_starts
 from arteq.fit.refine import RefineConfig, body_tables, refine, refine_iteration
@@ -1076,11 +1083,10 @@ class Fitter:
             if r.scan_mode != "full" or not r.written or not big:
                 continue
             s = r.scale_to_m
-            spacing = (it.get("conditions") or {}).get("spacing_m")
-            link_cm = th.off_link_cm if spacing is None else max(th.off_link_cm, 1.5 * spacing * 100)
-            far_cm = max(th.off_fit_cm, 2 * q.get("inlier_cm", th.inlier_cm))
-            group = off_group(r.scan_points.astype(np.float64) * s, r.vertices.astype(np.float64) * s,
-                              far_cm / 100, link_cm / 100)  # fmt: skip
+            far_m, link_m = off_group_distances(th, q.get("inlier_cm", th.inlier_cm), it.get("conditions"))
+            group = off_group(
+                r.scan_points.astype(np.float64) * s, r.vertices.astype(np.float64) * s, far_m, link_m
+            )
             kept = np.ones(len(group), bool)
             try:
                 name = f"{r.name} (points off its fit)"

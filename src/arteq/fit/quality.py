@@ -209,10 +209,7 @@ def fit_quality(
         cell = max(cell, th.noise_cell * conditions["noise_m"])
     origin = vertices.min(0)  # one grid for both
     surface_ratio = surface_cells(points, cell, origin) / max(1, surface_cells(vertices, cell, origin))
-    link_cm = th.off_link_cm
-    if conditions and conditions.get("spacing_m") is not None:
-        link_cm = max(link_cm, 1.5 * conditions["spacing_m"] * 100)
-    group, group_m = off_fit_group(points, d, max(th.off_fit_cm, 2 * inlier_cm) / 100, link_cm / 100)
+    group, group_m = off_fit_group(points, d, *off_group_distances(th, inlier_cm, conditions))
     values = {
         "inlier_frac": inlier_frac,
         "rmse_in_cm": rmse,
@@ -236,6 +233,17 @@ def fit_quality(
     }
     values["flags"] = quality_flags(values, th)
     return values
+
+
+def off_group_distances(
+    th: QualityThresholds, inlier_cm: float, conditions: dict | None
+) -> tuple[float, float]:
+    """``(far_m, link_m)`` of the check's off-fit group (:func:`off_fit_group`): farther than ``off_fit_cm``
+    or twice the inlier distance, linked within ``off_link_cm`` or 1.5 times a sparse scan's spacing."""
+    link_cm = th.off_link_cm
+    if conditions and conditions.get("spacing_m") is not None:
+        link_cm = max(link_cm, 1.5 * conditions["spacing_m"] * 100)
+    return max(th.off_fit_cm, 2 * inlier_cm) / 100, link_cm / 100
 
 
 def off_fit_group(points: np.ndarray, dist: np.ndarray, far_m: float, link_m: float) -> tuple[int, float]:
