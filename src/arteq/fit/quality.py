@@ -139,9 +139,9 @@ class QualityThresholds:
     #: tube, a sphere...), no ``implausible_shape``, at least ``person_inliers`` of its points within the
     #: inlier distance, at least ``person_coverage`` of that body covered, its surface at least
     #: ``person_ratio`` of that body's. A child standing by an adult, touching (one cluster, so not clutter
-    #: removal's ``second_body``): groups fitted alone 0.90-1.00 / 0.77-0.96 / 0.68-0.89; a leg or both
-    #: legs fitted away from their points: inliers 0.49-0.94, every one above 0.84 a tube or of implausible
-    #: shape (experiments/fitting/second_person/README.md)
+    #: removal's ``second_body``): groups fitted alone 0.90-1.00 / 0.77-0.92 / 0.68-0.89; a leg, both legs
+    #: or an arm fitted away from their points (the coverage gate off): 6 groups refused by their own check
+    #: (a tube, an implausible shape), 7 at inliers 0.70-0.87 (experiments/fitting/second_person/README.md)
     person_min_coverage: float = 0.95
     person_group_frac: float = 0.08
     person_group_cm: float = 60.0
